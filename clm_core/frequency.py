@@ -1,0 +1,142 @@
+"""Track receptances in the frequency domain (paper Sec. 5).
+
+H_i1(w) is the rail displacement above sleeper i over a harmonic force on
+the rail above sleeper 1 (the loaded sleeper, at the centre of the track):
+H11 is the direct receptance, H21 the rail above the first neighbouring
+sleeper, and so on. Time convention exp(+j w t): the dynamic stiffness is
+D(w) = K - w^2 M + j w C, and X = D^-1 F.
+
+Two independent routes are provided:
+
+- :func:`receptance`: direct banded solution of D(w) X = F at each frequency;
+- :func:`receptance_from_pulse`: the paper's route, the time response to the
+  Eq. (1) pulse (Newmark), then the ratio of the FFTs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+from numpy.typing import ArrayLike, NDArray
+from scipy.signal import argrelmax
+
+from clm_core.errors import ParameterError
+from clm_core.excitation import decay_pulse
+from clm_core.newmark import NewmarkLinear
+from clm_core.track import TrackSystem
+
+Array = NDArray[np.float64]
+CArray = NDArray[np.complex128]
+
+
+@dataclass(frozen=True)
+class Receptance:
+    """Receptances of the rail above sleepers 1..n_out for a force above sleeper 1.
+
+    Attributes
+    ----------
+    frequency : (n_f,) array
+        Frequencies [Hz].
+    H : (n_f, n_out) complex array
+        H[:, i] = H_{i+1,1} [m/N].
+    loaded_sleeper : int
+        Global index of the loaded sleeper.
+    """
+
+    frequency: Array
+    H: CArray
+    loaded_sleeper: int
+
+    def peaks_hz(self, column: int = 0) -> list[float]:
+        """Frequencies of the local maxima of |H| (ascending), refined by a parabola [Hz]."""
+        a = np.abs(self.H[:, column])
+        idx = argrelmax(a)[0]
+        out = []
+        f = self.frequency
+        for i in idx:
+            y0, y1, y2 = np.log(a[i - 1 : i + 2])
+            den = y0 - 2 * y1 + y2
+            shift = 0.5 * (y0 - y2) / den if den != 0 else 0.0
+            out.append(float(f[i] + shift * (f[i + 1] - f[i])))
+        return out
+
+
+def _check_frequencies(f: ArrayLike) -> Array:
+    f = np.asarray(f, dtype=float)
+    if f.ndim != 1 or f.size == 0 or not np.all(np.isfinite(f)) or np.any(f < 0):
+        raise ParameterError("frequencies: need a non-empty 1-D array of finite values >= 0 Hz")
+    return f
+
+
+def centre_sleeper(system: TrackSystem) -> int:
+    """Local index of the central (loaded) sleeper."""
+    return system.n_sleepers // 2
+
+
+def dynamic_solve(system: TrackSystem, f: ArrayLike, force: Array) -> CArray:
+    """Solve D(w) X = F at each frequency; returns X with shape (n_f, n_dof) [m].
+
+    Uses the banded LU of LAPACK (``solve_banded``): O(n b^2) per frequency.
+    """
+    f = _check_frequencies(f)
+    b = system.half_bandwidth
+    Kb, Mb, Cb = (system.banded(A).astype(float) for A in (system.K, system.M, system.C))
+    out = np.empty((f.size, system.n_dof), dtype=complex)
+    F = np.asarray(force, dtype=complex)
+    for k, fk in enumerate(f):
+        w = 2 * np.pi * fk
+        ab = Kb - w**2 * Mb + 1j * w * Cb
+        out[k] = sla.solve_banded((b, b), ab, F, overwrite_ab=True, check_finite=False)
+    return out
+
+
+def receptance(system: TrackSystem, f: ArrayLike, n_out: int = 5) -> Receptance:
+    """Direct receptances H_11 .. H_{n_out,1} by banded solution [m/N].
+
+    The unit force acts on the rail above the central sleeper; outputs are
+    the rail deflections above it and the ``n_out - 1`` following sleepers.
+    """
+    c = centre_sleeper(system)
+    if c + n_out > system.n_sleepers:
+        raise ParameterError(f"n_out = {n_out}: only {system.n_sleepers - c} sleepers from the centre")
+    F = np.zeros(system.n_dof)
+    F[system.rail_w[system.sleeper_node[c]]] = 1.0
+    X = dynamic_solve(system, f, F)
+    dofs = system.rail_w[system.sleeper_node[c : c + n_out]]
+    return Receptance(np.asarray(f, dtype=float), X[:, dofs], int(system.sleeper_index[c]))
+
+
+def receptance_from_pulse(
+    system: TrackSystem,
+    fmax: float = 400.0,
+    dt: float = 2.0e-5,
+    duration: float = 1.0,
+    td: float = 1.0e-4,
+    t0: float = 0.05,
+    n_out: int = 5,
+) -> Receptance:
+    """Receptances by the paper's route: Newmark response to the Eq. (1) pulse, then FFT.
+
+    H(f) = FFT(x) / FFT(f_input), for f up to ``fmax``. The Newmark frequency
+    error f' = tan(pi f dt)/(pi dt) is negligible for pi f dt << 1
+    (2.5e-4 relative at 400 Hz with the default dt = 2e-5 s). The record
+    must be long enough for the response to decay (duration >> 1/(damping)).
+    """
+    if fmax >= 0.5 / dt:
+        raise ParameterError(f"fmax = {fmax} Hz: must be below the Nyquist frequency {0.5 / dt:g} Hz")
+    c = centre_sleeper(system)
+    n_steps = int(round(duration / dt))
+    t = np.arange(n_steps + 1) * dt
+    p = decay_pulse(t, 1.0, t0, td)
+    F = np.zeros((n_steps + 1, system.n_dof))
+    F[:, system.rail_w[system.sleeper_node[c]]] = p
+    integ = NewmarkLinear(system.M, system.C, system.K, dt)
+    _, u, _ = integ.run(F, n_steps)
+    dofs = system.rail_w[system.sleeper_node[c : c + n_out]]
+    X = np.fft.rfft(u[:, dofs], axis=0)
+    P = np.fft.rfft(p)
+    freq = np.fft.rfftfreq(n_steps + 1, dt)
+    keep = freq <= fmax
+    return Receptance(freq[keep], (X[keep] / P[keep, None]), int(system.sleeper_index[c]))
