@@ -1,0 +1,242 @@
+"""Compiled kernels (numba) of the streaming time integrator.
+
+Three pieces, all O(n) per call for a banded system of n DOFs:
+
+- :func:`ldlt_envelope`: LDL^T factorisation of a symmetric positive definite
+  matrix in envelope (profile, "skyline") storage, done once per window
+  configuration. Row ``i`` of the strict lower triangle is stored from its
+  first non-zero column ``first[i]`` to ``i - 1`` at ``L[ptr[i]:ptr[i+1]]``;
+  there is no fill outside the envelope.
+- :func:`solve_envelope`: forward and back substitution with that factor.
+- :func:`run_steps`: many steps of Newmark average acceleration in the
+  increment form (see :mod:`clm_core.stepper`)::
+
+      K_eff du = f_{n+1} + f_n - 2 K u_n + (4/dt) M v_n,
+      u_{n+1} = u_n + du,   v_{n+1} = (2/dt) du - v_n,
+
+  with K_eff = K + (2/dt) C + (4/dt^2) M; the right-hand side is one sparse
+  (CSR) pass over the union pattern of K and M.
+
+The kernels are compiled with ``cache=True`` (the first call in a fresh
+environment compiles, later processes load the cache).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def ldlt_envelope(first, ptr, L, D):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Factorise A = L D L^T in place (envelope storage); return the first failing row or -1.
+
+    On entry ``L`` holds the strict lower envelope of A and ``D`` its
+    diagonal; on exit the unit lower factor and the pivots. A pivot
+    <= 0 (matrix not positive definite) stops the factorisation and its row
+    is returned.
+    """
+    n = D.shape[0]
+    for i in range(n):
+        fi = first[i]
+        pi = ptr[i]
+        for j in range(fi, i):
+            fj = first[j]
+            pj = ptr[j]
+            k0 = fi if fi > fj else fj
+            s = L[pi + j - fi]
+            for k in range(k0, j):
+                s -= L[pi + k - fi] * L[pj + k - fj] * D[k]
+            L[pi + j - fi] = s / D[j]
+        d = D[i]
+        for k in range(fi, i):
+            lik = L[pi + k - fi]
+            d -= lik * lik * D[k]
+        if not d > 0.0:
+            return i
+        D[i] = d
+    return -1
+
+
+@njit(cache=True)
+def solve_envelope(first, ptr, L, D, x):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Solve (L D L^T) y = x in place."""
+    n = D.shape[0]
+    for i in range(n):
+        fi = first[i]
+        pi = ptr[i]
+        s = x[i]
+        for k in range(fi, i):
+            s -= L[pi + k - fi] * x[k]
+        x[i] = s
+    for i in range(n):
+        x[i] /= D[i]
+    for i in range(n - 1, -1, -1):
+        fi = first[i]
+        pi = ptr[i]
+        xi = x[i]
+        for k in range(fi, i):
+            x[k] -= L[pi + k - fi] * xi
+
+
+@njit(cache=True)
+def free_rhs(indptr, indices, Ka, Mb, u, v, prev_dofs, prev_vals, rhs):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """rhs = Ka u + Mb v + f_n (the part of the step right-hand side known at t_n)."""
+    n = u.shape[0]
+    for i in range(n):
+        s = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            s += Ka[p] * u[j] + Mb[p] * v[j]
+        rhs[i] = s
+    for q in range(prev_dofs.shape[0]):
+        rhs[prev_dofs[q]] += prev_vals[q]
+
+
+@njit(cache=True)
+def run_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    indptr, indices, Ka, Mb, first, ptr, L, D, a1,
+    u, v, rhs, prev_dofs, prev_vals,
+    ldofs, lw, F,
+    s_dof, a_dof, r_dof, kb, db,
+    wdefl, wvel,
+    out_every, out_phase, out_force, out_rail, out_sleeper, out_area,
+    pk_force, pk_rail,
+):
+    """Advance ``F.shape[0]`` steps in place.
+
+    Parameters (all arrays contiguous)
+    ----------------------------------
+    indptr, indices, Ka, Mb : CSR of -2 K and (4/dt) M on the union pattern.
+    first, ptr, L, D : envelope LDL^T factor of K_eff.
+    a1 : 2 / dt [1/s].
+    u, v : state [m], [m/s] (n,), updated.
+    rhs : work array (n,).
+    prev_dofs, prev_vals : load vector f_n at the start, as (DOF, value [N]) pairs.
+    ldofs : (S, 4 W) int DOFs of each wheel's element at every step.
+    lw : (S, 4 W) Hermite weights (0 for an absent wheel).
+    F : (S, W) wheel forces [N] at t_{n+1} of each step (0 for an absent wheel).
+    s_dof, a_dof, r_dof : (N,) sleeper, contact-area (-1: rigid) and rail-above-sleeper DOFs.
+    kb, db : (N,) ballast stiffness [N/m] and damping [N s/m].
+    wdefl, wvel : (S, W) outputs: rail deflection [m] and velocity [m/s] under each wheel.
+    out_every, out_phase : step s is an output step when (s + out_phase) % out_every == 0
+        (out_every = 0: no sleeper outputs).
+    out_force, out_rail, out_sleeper, out_area : (K, N) sleeper outputs at output steps.
+    pk_force, pk_rail : (N,) running maxima of the soil force [N] and rail
+        deflection above the sleepers [m], updated every step.
+    """
+    n = u.shape[0]
+    S = F.shape[0]
+    W = F.shape[1]
+    N = s_dof.shape[0]
+    kout = 0
+    for s in range(S):
+        # right-hand side: -2 K u + (4/dt) M v + f_n + f_{n+1}
+        for i in range(n):
+            acc = 0.0
+            for p in range(indptr[i], indptr[i + 1]):
+                j = indices[p]
+                acc += Ka[p] * u[j] + Mb[p] * v[j]
+            rhs[i] = acc
+        if s == 0:
+            for q in range(prev_dofs.shape[0]):
+                rhs[prev_dofs[q]] += prev_vals[q]
+        else:
+            for w in range(W):
+                fw = F[s - 1, w]
+                for c in range(4):
+                    rhs[ldofs[s - 1, 4 * w + c]] += lw[s - 1, 4 * w + c] * fw
+        for w in range(W):
+            fw = F[s, w]
+            for c in range(4):
+                rhs[ldofs[s, 4 * w + c]] += lw[s, 4 * w + c] * fw
+        # solve K_eff du = rhs (in place)
+        for i in range(n):
+            fi = first[i]
+            pi = ptr[i]
+            acc = rhs[i]
+            for k in range(fi, i):
+                acc -= L[pi + k - fi] * rhs[k]
+            rhs[i] = acc
+        for i in range(n):
+            rhs[i] /= D[i]
+        for i in range(n - 1, -1, -1):
+            fi = first[i]
+            pi = ptr[i]
+            xi = rhs[i]
+            for k in range(fi, i):
+                rhs[k] -= L[pi + k - fi] * xi
+        # state update
+        for i in range(n):
+            du = rhs[i]
+            u[i] += du
+            v[i] = a1 * du - v[i]
+        # wheel outputs
+        for w in range(W):
+            sw = 0.0
+            sv = 0.0
+            for c in range(4):
+                dof = ldofs[s, 4 * w + c]
+                wt = lw[s, 4 * w + c]
+                sw += wt * u[dof]
+                sv += wt * v[dof]
+            wdefl[s, w] = sw
+            wvel[s, w] = sv
+        # sleeper peaks every step, fields at output steps
+        record = out_every > 0 and (s + out_phase) % out_every == 0
+        for i in range(N):
+            sd = s_dof[i]
+            ad = a_dof[i]
+            if ad >= 0:
+                dz = u[sd] - u[ad]
+                dv = v[sd] - v[ad]
+                xa = u[ad]
+            else:
+                dz = u[sd]
+                dv = v[sd]
+                xa = 0.0
+            fs = kb[i] * dz + db[i] * dv
+            rw = u[r_dof[i]]
+            if fs > pk_force[i]:
+                pk_force[i] = fs
+            if rw > pk_rail[i]:
+                pk_rail[i] = rw
+            if record:
+                out_force[kout, i] = fs
+                out_rail[kout, i] = rw
+                out_sleeper[kout, i] = u[sd]
+                out_area[kout, i] = xa
+        if record:
+            kout += 1
+    return kout
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel on a tiny system."""
+    first = np.array([0, 0], dtype=np.int64)
+    ptr = np.array([0, 0, 1], dtype=np.int64)
+    L = np.array([0.5])
+    D = np.array([2.0, 2.0])
+    ldlt_envelope(first, ptr, L, D)
+    x = np.ones(2)
+    solve_envelope(first, ptr, L, D, x)
+    indptr = np.array([0, 1, 2], dtype=np.int64)
+    indices = np.array([0, 1], dtype=np.int64)
+    Ka = np.array([-1.0, -1.0])
+    Mb = np.array([1.0, 1.0])
+    u = np.zeros(2)
+    v = np.zeros(2)
+    rhs = np.zeros(2)
+    pd = np.zeros(4, dtype=np.int64)
+    pv = np.zeros(4)
+    free_rhs(indptr, indices, Ka, Mb, u, v, pd, pv, rhs)
+    ld = np.zeros((1, 4), dtype=np.int64)
+    lw = np.zeros((1, 4))
+    F = np.zeros((1, 1))
+    sd = np.array([0], dtype=np.int64)
+    ad = np.array([-1], dtype=np.int64)
+    kb = np.ones(1)
+    o = np.zeros((1, 1))
+    run_steps(indptr, indices, Ka, Mb, first, ptr, L, D, 1.0, u, v, rhs, pd, pv, ld, lw, F,
+              sd, ad, sd, kb, kb, o.copy(), o.copy(), 1, 0, o.copy(), o.copy(), o.copy(), o.copy(),
+              np.zeros(1), np.zeros(1))

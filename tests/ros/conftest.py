@@ -1,0 +1,242 @@
+"""Helpers for the ROS 2 tests: isolated DDS domains and ROS subprocesses.
+
+Every test that talks over DDS gets its own ``ROS_DOMAIN_ID`` (held with a
+file lock, so concurrent pytest runs on one machine never share a domain)
+and discovery restricted to loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=
+LOCALHOST``): no traffic leaves the machine.
+
+Fixtures
+--------
+ros_domain_id : int
+    A domain id no other test on this machine is using right now.
+ros_env : dict
+    Environment for ROS subprocesses (domain id, LOCALHOST discovery, RMW,
+    unbuffered output, ``clm_ros`` sources on ``PYTHONPATH``).
+ros_python : RosPython
+    Starts python snippets as separate processes with ``ros_env`` and
+    kills what is left of them at teardown.
+new_ros_python : callable
+    Returns another ``RosPython`` in a further domain of its own (to check
+    isolation between domains).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import random
+import subprocess
+import sys
+import tempfile
+import textwrap
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+CLM_ROS_SRC = REPO_ROOT / "ros2_ws" / "src" / "clm_ros"
+
+# clm_ros (pure python) is used from the source tree unless it is installed.
+if str(CLM_ROS_SRC) not in sys.path:
+    sys.path.insert(0, str(CLM_ROS_SRC))
+
+#: Domain ids handed out to tests (0 is the default and avoided; Fast DDS
+#: supports ids up to 232).
+DOMAIN_IDS = range(100, 232)
+
+#: How long a test waits for DDS discovery before failing [s]. Discovery is
+#: usually < 0.3 s, sometimes ~3 s on a loaded machine.
+DISCOVERY_TIMEOUT = 20.0
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark every test under tests/ros with ``ros``."""
+    here = Path(__file__).resolve().parent
+    for item in items:
+        if here in Path(str(item.path)).resolve().parents:
+            item.add_marker(pytest.mark.ros)
+
+
+def _lock_dir() -> Path:
+    path = Path(tempfile.gettempdir()) / "clm_ros_test_domains"
+    path.mkdir(exist_ok=True)
+    return path
+
+
+@contextlib.contextmanager
+def hold_domain_id() -> Iterator[int]:
+    """Hold a ROS domain id exclusively (file lock) while the context is open."""
+    ids = list(DOMAIN_IDS)
+    start = random.randrange(len(ids))
+    for domain_id in ids[start:] + ids[:start]:
+        fd = os.open(_lock_dir() / f"{domain_id}.lock", os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        try:
+            yield domain_id
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+        return
+    pytest.fail(f"all ROS domain ids {DOMAIN_IDS.start}-{DOMAIN_IDS.stop - 1} are in use")
+
+
+@pytest.fixture
+def ros_domain_id() -> Iterator[int]:
+    """A ROS domain id no other test on this machine uses during this test."""
+    with hold_domain_id() as domain_id:
+        yield domain_id
+
+
+def make_ros_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Environment for a ROS process isolated on loopback in ``domain_id``.
+
+    Parameters
+    ----------
+    domain_id : int
+        ``ROS_DOMAIN_ID`` of the process.
+    base : mapping, optional
+        Environment to start from; default ``os.environ``.
+
+    Returns
+    -------
+    dict
+        A new environment dictionary.
+    """
+    env = dict(os.environ if base is None else base)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_STATIC_PEERS", None)
+    env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy; warns if set with the above
+    env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
+    env["PYTHONUNBUFFERED"] = "1"
+    env["PYTHONPATH"] = os.pathsep.join(
+        p for p in (str(CLM_ROS_SRC), env.get("PYTHONPATH", "")) if p
+    )
+    return env
+
+
+@pytest.fixture
+def ros_env(ros_domain_id: int) -> dict[str, str]:
+    """Environment for ROS subprocesses of this test (own domain, loopback only)."""
+    return make_ros_env(ros_domain_id)
+
+
+class RosPython:
+    """Run python snippets as separate processes of the test's interpreter.
+
+    The snippet is dedented and written to a file in the test's ``tmp_path``
+    (so tracebacks show its line numbers); ``sys.argv[1:]`` are ``args``.
+    Processes still running at teardown are killed.
+    """
+
+    #: How long to wait for DDS discovery before failing [s].
+    discovery_timeout = DISCOVERY_TIMEOUT
+
+    def __init__(self, env: Mapping[str, str], tmp_path: Path, domain_id: int) -> None:
+        self.env = dict(env)
+        self.domain_id = domain_id
+        self.tmp_path = tmp_path
+        self.procs: list[subprocess.Popen[str]] = []
+        self._count = 0
+
+    def _script(self, code: str, name: str) -> Path:
+        self._count += 1
+        path = self.tmp_path / f"{self._count:02d}_{name}.py"
+        path.write_text(textwrap.dedent(code), encoding="utf-8")
+        return path
+
+    def spawn(
+        self, code: str, args: Sequence[str] = (), *, name: str = "snippet"
+    ) -> subprocess.Popen[str]:
+        """Start ``code`` in a new process; stdout and stderr are pipes (text)."""
+        script = self._script(code, name)
+        proc = subprocess.Popen(
+            [sys.executable, str(script), *args],
+            env=self.env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=self.tmp_path,
+        )
+        self.procs.append(proc)
+        return proc
+
+    def run(
+        self,
+        code: str,
+        args: Sequence[str] = (),
+        *,
+        name: str = "snippet",
+        timeout: float = 60.0,
+        check: bool = True,
+    ) -> subprocess.CompletedProcess[str]:
+        """Run ``code`` to completion; fail the test on a non-zero exit if ``check``."""
+        proc = self.spawn(code, args, name=name)
+        out, err = self.wait(proc, timeout)
+        result = subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+        if check and proc.returncode != 0:
+            pytest.fail(
+                f"{name} exited with {proc.returncode}\n--- stdout\n{out}\n--- stderr\n{err}"
+            )
+        return result
+
+    @staticmethod
+    def wait(proc: subprocess.Popen[str], timeout: float) -> tuple[str, str]:
+        """Wait for ``proc``; on timeout kill it and fail the test with its output."""
+        try:
+            return proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+            pytest.fail(
+                f"process {proc.args} did not finish within {timeout} s\n"
+                f"--- stdout\n{out}\n--- stderr\n{err}"
+            )
+
+    def cleanup(self) -> None:
+        """Kill the processes this helper started that are still running."""
+        for proc in self.procs:
+            if proc.poll() is None:
+                proc.kill()
+            try:
+                proc.communicate(timeout=10)
+            except (subprocess.TimeoutExpired, ValueError):
+                pass
+
+
+@pytest.fixture
+def ros_python(ros_env: dict[str, str], ros_domain_id: int, tmp_path: Path) -> Iterator[RosPython]:
+    """Helper to run python snippets as ROS processes in this test's domain."""
+    helper = RosPython(ros_env, tmp_path, ros_domain_id)
+    try:
+        yield helper
+    finally:
+        helper.cleanup()
+
+
+@pytest.fixture
+def new_ros_python(tmp_path: Path) -> Iterator[Callable[[], RosPython]]:
+    """Factory of ``RosPython`` helpers, each in a further domain of its own."""
+    with contextlib.ExitStack() as stack:
+        helpers: list[RosPython] = []
+
+        def make() -> RosPython:
+            domain_id = stack.enter_context(hold_domain_id())
+            sub = tmp_path / f"domain_{domain_id}"
+            sub.mkdir()
+            helper = RosPython(make_ros_env(domain_id), sub, domain_id)
+            helpers.append(helper)
+            return helper
+
+        try:
+            yield make
+        finally:
+            for helper in helpers:
+                helper.cleanup()
