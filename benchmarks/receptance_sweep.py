@@ -46,8 +46,14 @@ def main() -> None:
             spla.splu((s.K - w**2 * s.M + 1j * w * s.C).tocsc()).solve(F.astype(complex))
 
     t_ref = best_of(reference, 2)
-    out = {"sleepers": a.sleepers, "n_dof": s.n_dof, "frequencies": f.size,
-           "banded_s": t_band, "sparse_lu_reference_s": t_ref, "speedup": t_ref / t_band}
+    out = {
+        "sleepers": a.sleepers,
+        "n_dof": s.n_dof,
+        "frequencies": f.size,
+        "banded_s": t_band,
+        "sparse_lu_reference_s": t_ref,
+        "speedup": t_ref / t_band,
+    }
     if a.json:
         print(json.dumps(out))
     else:

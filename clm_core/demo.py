@@ -40,7 +40,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if code:
             return code
         s = json.loads((out / name / "summary.json").read_text())
-        index[name] = {"measured_delay_s": s["measured_delay_s"], "eq21_delay_s": s["eq21_delay_s"], "eq23_delay_s": s["eq23_delay_s"]}
+        index[name] = {
+            "measured_delay_s": s["measured_delay_s"],
+            "eq21_delay_s": s["eq21_delay_s"],
+            "eq23_delay_s": s["eq23_delay_s"],
+        }
     (out / "index.json").write_text(json.dumps(index, indent=2) + "\n")
     print(f"demo: {len(index)} reports in {out}/ (index.json lists the peaks and delays)")
     return 0

@@ -183,9 +183,7 @@ class SoilParams:
 
     def __post_init__(self) -> None:
         if self.model not in SOIL_MODELS:
-            raise ParameterError(
-                f"soil.model = {self.model!r}: must be one of {', '.join(SOIL_MODELS)}"
-            )
+            raise ParameterError(f"soil.model = {self.model!r}: must be one of {', '.join(SOIL_MODELS)}")
         used = SOIL_USED[self.model]
         for name in ("mf", "kf", "df", "kc", "dc"):
             v = _check_finite(f"soil.{name}", getattr(self, name))
@@ -300,7 +298,12 @@ TRACK_NAMES = tuple(f.name for f in fields(TrackParams))
 SOIL_NAMES = ("mf", "kf", "df", "kc", "dc")
 PER_SLEEPER_NAMES = ("kp", "dp", "ms", "kb", "db", "mf", "kf", "df", "kc", "dc")
 _ALIASES = {
-    "Er": "E", "Ir": "I", "rhor": "rho", "Ar": "A", "d": "spacing", "m": "ms",
+    "Er": "E",
+    "Ir": "I",
+    "rhor": "rho",
+    "Ar": "A",
+    "d": "spacing",
+    "m": "ms",
 }
 
 
@@ -327,8 +330,7 @@ class SleeperOverride:
         for name, v in self.values.items():
             if name not in PER_SLEEPER_NAMES:
                 raise ParameterError(
-                    f"overrides: unknown per-sleeper parameter {name!r}; "
-                    f"allowed: {', '.join(PER_SLEEPER_NAMES)}"
+                    f"overrides: unknown per-sleeper parameter {name!r}; allowed: {', '.join(PER_SLEEPER_NAMES)}"
                 )
             _check_finite(f"overrides.{name}", v)
 
@@ -347,9 +349,7 @@ class SleeperOverride:
                 raise ParameterError(f"overrides: to = {b} < from = {a}")
             sleepers = tuple(range(a, b + 1))
         else:
-            raise ParameterError(
-                f"overrides entry {dict(data)!r}: needs 'sleepers: [...]' or 'from'/'to'"
-            )
+            raise ParameterError(f"overrides entry {dict(data)!r}: needs 'sleepers: [...]' or 'from'/'to'")
         return cls(sleepers=sleepers, values={k: float(v) for k, v in d.items()})
 
     def to_dict(self) -> dict[str, Any]:
@@ -390,9 +390,7 @@ class ModelParams:
             else:
                 known = sorted(set(RAIL_NAMES + TRACK_NAMES + SOIL_NAMES + tuple(_ALIASES)))
                 raise ParameterError(f"unknown parameter {raw_name!r}; known: {', '.join(known)}")
-        return replace(
-            self, rail=RailParams(**rail), track=TrackParams(**track), soil=SoilParams(**soil)
-        )
+        return replace(self, rail=RailParams(**rail), track=TrackParams(**track), soil=SoilParams(**soil))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain mapping in the parameter-file layout."""

@@ -7,11 +7,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from clm_core.frequency import Receptance  # noqa: E402
-from clm_core.soil.chain import ChainSums, ChainTimeResponse  # noqa: E402
+from clm_core.frequency import Receptance
+from clm_core.soil.chain import ChainSums, ChainTimeResponse
 
 
 def plot_receptance(rec: Receptance, path: str | Path, title: str = "") -> None:

@@ -47,13 +47,30 @@ def beam_element(EI: float, m: float, L: float) -> tuple[Array, Array]:
     L : float
         Element length [m].
     """
-    k = EI / L**3 * np.array(
-        [[12, 6 * L, -12, 6 * L], [6 * L, 4 * L**2, -6 * L, 2 * L**2],
-         [-12, -6 * L, 12, -6 * L], [6 * L, 2 * L**2, -6 * L, 4 * L**2]]
+    k = (
+        EI
+        / L**3
+        * np.array(
+            [
+                [12, 6 * L, -12, 6 * L],
+                [6 * L, 4 * L**2, -6 * L, 2 * L**2],
+                [-12, -6 * L, 12, -6 * L],
+                [6 * L, 2 * L**2, -6 * L, 4 * L**2],
+            ]
+        )
     )
-    mm = m * L / 420.0 * np.array(
-        [[156, 22 * L, 54, -13 * L], [22 * L, 4 * L**2, 13 * L, -3 * L**2],
-         [54, 13 * L, 156, -22 * L], [-13 * L, -3 * L**2, -22 * L, 4 * L**2]]
+    mm = (
+        m
+        * L
+        / 420.0
+        * np.array(
+            [
+                [156, 22 * L, 54, -13 * L],
+                [22 * L, 4 * L**2, 13 * L, -3 * L**2],
+                [54, 13 * L, 156, -22 * L],
+                [-13 * L, -3 * L**2, -22 * L, 4 * L**2],
+            ]
+        )
     )
     return k, mm
 
@@ -87,8 +104,18 @@ def sleeper_properties(params: ModelParams, global_index: IntArray) -> SleeperPr
     """Per-sleeper values for the sleepers with the given global indices (overrides applied)."""
     n = len(global_index)
     t, s = params.track, params.soil
-    base = {"kp": t.kp, "dp": t.dp, "ms": t.ms, "kb": t.kb, "db": t.db,
-            "mf": s.mf, "kf": s.kf, "df": s.df, "kc": s.kc, "dc": s.dc}
+    base = {
+        "kp": t.kp,
+        "dp": t.dp,
+        "ms": t.ms,
+        "kb": t.kb,
+        "db": t.db,
+        "mf": s.mf,
+        "kf": s.kf,
+        "df": s.df,
+        "kc": s.kc,
+        "dc": s.dc,
+    }
     vals = {k: np.full(n, float(v)) for k, v in base.items()}
     pos = {int(g): i for i, g in enumerate(global_index)}
     for ov in params.overrides:
@@ -366,9 +393,21 @@ def assemble(
     coo = C.tocoo()
     bw = max(bw, int(np.max(np.abs(coo.row - coo.col))) if coo.nnz else 0)
     system = TrackSystem(
-        params=params, M=M, C=C, K=K, node_x=node_x, rail_w=rail_w, rail_th=rail_th,
-        sleeper_index=gidx, sleeper_x=sx, sleeper_node=sleeper_node, sleeper_dof=sleeper_dof,
-        area_dof=area_dof, props=props, elements_per_bay=ne, half_bandwidth=bw,
+        params=params,
+        M=M,
+        C=C,
+        K=K,
+        node_x=node_x,
+        rail_w=rail_w,
+        rail_th=rail_th,
+        sleeper_index=gidx,
+        sleeper_x=sx,
+        sleeper_node=sleeper_node,
+        sleeper_dof=sleeper_dof,
+        area_dof=area_dof,
+        props=props,
+        elements_per_bay=ne,
+        half_bandwidth=bw,
     )
     if check_stability:
         check_damping(system)

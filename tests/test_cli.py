@@ -17,8 +17,28 @@ HEADER = "frequency_hz,H11_re,H11_im,H21_re,H21_im,H31_re,H31_im,H41_re,H41_im,H
 @pytest.mark.parametrize("soil", ["mevergnies", "soft", "medium", "stiff", "haren"])
 def test_receptance_every_preset(tmp_path: Path, track: str, soil: str) -> None:
     out = tmp_path / "r"
-    assert main(["receptance", "--track", track, "--soil", soil, "--model", "clm",
-                 "--fmin", "1", "--fmax", "400", "--df", "1", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "receptance",
+                "--track",
+                track,
+                "--soil",
+                soil,
+                "--model",
+                "clm",
+                "--fmin",
+                "1",
+                "--fmax",
+                "400",
+                "--df",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     with (out / "receptance.csv").open() as fh:
         rows = list(csv.reader(fh))
     assert ",".join(rows[0]) == HEADER
@@ -33,8 +53,24 @@ def test_receptance_every_preset(tmp_path: Path, track: str, soil: str) -> None:
 def test_receptance_models_and_set(tmp_path: Path) -> None:
     for model in ("rigid", "winkler", "lysmer"):
         assert main(["receptance", "--model", model, "--df", "2", "--out", str(tmp_path / model)]) == 0
-    assert main(["receptance", "--set", "kb=50e6", "--set", "d=0.65", "--sleepers", "31", "--df", "2",
-                 "--out", str(tmp_path / "set")]) == 0
+    assert (
+        main(
+            [
+                "receptance",
+                "--set",
+                "kb=50e6",
+                "--set",
+                "d=0.65",
+                "--sleepers",
+                "31",
+                "--df",
+                "2",
+                "--out",
+                str(tmp_path / "set"),
+            ]
+        )
+        == 0
+    )
     p = json.loads((tmp_path / "set" / "summary.json").read_text())["parameters"]
     assert p["track"]["kb"] == 50e6 and p["track"]["spacing"] == 0.65
     # the rigid-ground Mevergnies track resonates near 64 and 322 Hz
@@ -66,8 +102,9 @@ def test_soil_chain_every_preset(tmp_path: Path, soil: str) -> None:
     ],
 )
 def test_clear_errors(tmp_path: Path, argv: list[str], message: str) -> None:
-    proc = subprocess.run([sys.executable, "-m", "clm_core.cli", *argv, "--out", str(tmp_path)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "clm_core.cli", *argv, "--out", str(tmp_path)], capture_output=True, text=True
+    )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], proc.stderr

@@ -91,7 +91,9 @@ def test_unknown_presets_and_files() -> None:
 
 def test_yaml_round_trip_with_overrides(tmp_path) -> None:  # type: ignore[no-untyped-def]
     p = load_model("mevergnies", "haren", "clm", {"kb": 50e6})
-    p = ModelParams.from_dict({**p.to_dict(), "overrides": [{"sleepers": [3], "kb": 5e6}, {"from": 7, "to": 9, "kf": 20e6}]})
+    p = ModelParams.from_dict(
+        {**p.to_dict(), "overrides": [{"sleepers": [3], "kb": 5e6}, {"from": 7, "to": 9, "kf": 20e6}]}
+    )
     f = tmp_path / "p.yaml"
     save_params_file(p, f)
     q = load_params_file(f)

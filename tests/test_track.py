@@ -19,8 +19,12 @@ def _boef(p: ModelParams) -> tuple[float, float]:
 
 @pytest.mark.parametrize(
     ("track", "soil", "model"),
-    [("mevergnies", "mevergnies", "rigid"), ("mevergnies", "mevergnies", "winkler"),
-     ("soil-study", "soft", "winkler"), ("soil-study", "medium", "winkler")],
+    [
+        ("mevergnies", "mevergnies", "rigid"),
+        ("mevergnies", "mevergnies", "winkler"),
+        ("soil-study", "soft", "winkler"),
+        ("soil-study", "medium", "winkler"),
+    ],
 )
 def test_static_limit_beam_on_elastic_foundation(track: str, soil: str, model: str) -> None:
     p = load_model(track, soil, model)
@@ -84,8 +88,10 @@ def test_time_domain_pulse_route_matches_direct(model: str) -> None:
 def test_models_ordering_at_low_frequency() -> None:
     # softer foundations give larger static receptance; the CLM chain spreads the load (between rigid and Lysmer)
     f = [0.5]
-    H = {m: abs(receptance(assemble(load_model("mevergnies", "mevergnies", m), 41), f).H[0, 0]) for m in
-         ("rigid", "winkler", "lysmer", "clm")}
+    H = {
+        m: abs(receptance(assemble(load_model("mevergnies", "mevergnies", m), 41), f).H[0, 0])
+        for m in ("rigid", "winkler", "lysmer", "clm")
+    }
     assert H["rigid"] < H["clm"] < H["lysmer"]
     assert H["winkler"] == pytest.approx(H["lysmer"], rel=1e-4)
 

@@ -17,9 +17,21 @@ def add_model_arguments(p: argparse.ArgumentParser, sleepers_default: int) -> No
     p.add_argument("--track", default="mevergnies", help="track preset or YAML file (default: mevergnies)")
     p.add_argument("--soil", default="mevergnies", help="soil preset or YAML file (default: mevergnies)")
     p.add_argument("--model", default="clm", choices=SOIL_MODELS, help="foundation model (default: clm)")
-    p.add_argument("--params", default=None, help="full parameter file (rail, track, soil, overrides); replaces --track/--soil/--model")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter, e.g. --set kb=50e6 (repeatable)")
-    p.add_argument("--sleepers", type=int, default=sleepers_default, help=f"number of sleepers (default: {sleepers_default})")
+    p.add_argument(
+        "--params",
+        default=None,
+        help="full parameter file (rail, track, soil, overrides); replaces --track/--soil/--model",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a parameter, e.g. --set kb=50e6 (repeatable)",
+    )
+    p.add_argument(
+        "--sleepers", type=int, default=sleepers_default, help=f"number of sleepers (default: {sleepers_default})"
+    )
     p.add_argument("--elements-per-bay", type=int, default=2, help="rail elements per sleeper bay (default: 2)")
 
 

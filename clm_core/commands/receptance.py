@@ -17,9 +17,12 @@ from clm_core.track import assemble
 
 def register(sub: Any) -> None:
     """Add the ``receptance`` sub-command."""
-    p = sub.add_parser("receptance", help="track receptances H11..H51 in the frequency domain",
-                       description="Rail receptances above sleepers 1..5 for a force above sleeper 1 "
-                       "(the central sleeper), by direct banded solution.")
+    p = sub.add_parser(
+        "receptance",
+        help="track receptances H11..H51 in the frequency domain",
+        description="Rail receptances above sleepers 1..5 for a force above sleeper 1 "
+        "(the central sleeper), by direct banded solution.",
+    )
     add_model_arguments(p, sleepers_default=41)
     p.add_argument("--fmin", type=float, default=1.0, help="lowest frequency [Hz] (default 1)")
     p.add_argument("--fmax", type=float, default=400.0, help="highest frequency [Hz] (default 400)")
@@ -46,7 +49,9 @@ def run(args: argparse.Namespace) -> int:
     for i in range(5):
         cols += [rec.H[:, i].real, rec.H[:, i].imag]
         header += [f"H{i + 1}1_re", f"H{i + 1}1_im"]
-    np.savetxt(d / "receptance.csv", np.column_stack(cols), delimiter=",", header=",".join(header), comments="", fmt="%.10e")
+    np.savetxt(
+        d / "receptance.csv", np.column_stack(cols), delimiter=",", header=",".join(header), comments="", fmt="%.10e"
+    )
     plot_receptance(rec, d / "receptance.png", title=f"Track receptance: {params.name or 'parameter file'}")
     peaks = rec.peaks_hz()
     summary: dict[str, Any] = {

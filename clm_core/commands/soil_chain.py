@@ -24,9 +24,12 @@ from clm_core.soil.formulas import (
 
 def register(sub: Any) -> None:
     """Add the ``soil-chain`` sub-command."""
-    p = sub.add_parser("soil-chain", help="the CLM soil chain alone: impedance sums and pulse response",
-                       description="Chain of 2n+1 contact areas, centre one loaded: the impedances over the "
-                       "total and alternating sums against Eq. (16)/(18), and the response to the Eq. (1) pulse.")
+    p = sub.add_parser(
+        "soil-chain",
+        help="the CLM soil chain alone: impedance sums and pulse response",
+        description="Chain of 2n+1 contact areas, centre one loaded: the impedances over the "
+        "total and alternating sums against Eq. (16)/(18), and the response to the Eq. (1) pulse.",
+    )
     p.add_argument("--soil", default="mevergnies", help="soil preset or YAML file (default: mevergnies)")
     p.add_argument("--model", default="clm", choices=[m for m in SOIL_MODELS if m != "rigid"])
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a soil parameter")
@@ -62,14 +65,33 @@ def run(args: argparse.Namespace) -> int:
     d = out_dir(args.out)
     np.savetxt(
         d / "chain.csv",
-        np.column_stack([f, sums.total.real, sums.total.imag, eq16.real, eq16.imag,
-                         sums.alternating.real, sums.alternating.imag, eq18.real, eq18.imag]),
-        delimiter=",", comments="", fmt="%.10e",
+        np.column_stack(
+            [
+                f,
+                sums.total.real,
+                sums.total.imag,
+                eq16.real,
+                eq16.imag,
+                sums.alternating.real,
+                sums.alternating.imag,
+                eq18.real,
+                eq18.imag,
+            ]
+        ),
+        delimiter=",",
+        comments="",
+        fmt="%.10e",
         header="frequency_hz,total_re,total_im,eq16_re,eq16_im,alternating_re,alternating_im,eq18_re,eq18_im",
     )
     c = args.areas // 2
-    np.savetxt(d / "chain_time.csv", np.column_stack([resp.t, resp.force, resp.x[:, c : c + 3]]), delimiter=",",
-               comments="", fmt="%.10e", header="time_s,force_N,x0_m,x1_m,x2_m")
+    np.savetxt(
+        d / "chain_time.csv",
+        np.column_stack([resp.t, resp.force, resp.x[:, c : c + 3]]),
+        delimiter=",",
+        comments="",
+        fmt="%.10e",
+        header="time_s,force_N,x0_m,x1_m,x2_m",
+    )
     plot_chain(sums, eq16, eq18, resp, d / "chain.png", title=f"CLM chain, soil {args.soil} ({args.areas} areas)")
     amps, times = resp.peaks(2)
     summary: dict[str, Any] = {
@@ -87,9 +109,11 @@ def run(args: argparse.Namespace) -> int:
         "pulse": {"A_N": 1.0, "t0_s": 0.05, "td_s": 0.001},
     }
     write_json(d / "summary.json", summary)
-    print(f"soil-chain: delays {summary['measured_delay_s'][0] * 1e3:.2f}, {summary['measured_delay_s'][1] * 1e3:.2f} ms "
-          f"(Eq. 21: {summary['eq21_delay_s'] and summary['eq21_delay_s'] * 1e3:.2f} ms, Eq. 23: "
-          f"{summary['eq23_delay_s'] and summary['eq23_delay_s'] * 1e3:.2f} ms) -> {d}")
+    print(
+        f"soil-chain: delays {summary['measured_delay_s'][0] * 1e3:.2f}, {summary['measured_delay_s'][1] * 1e3:.2f} ms "
+        f"(Eq. 21: {summary['eq21_delay_s'] and summary['eq21_delay_s'] * 1e3:.2f} ms, Eq. 23: "
+        f"{summary['eq23_delay_s'] and summary['eq23_delay_s'] * 1e3:.2f} ms) -> {d}"
+    )
     return 0
 
 

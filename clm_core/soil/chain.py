@@ -108,9 +108,7 @@ def chain_sums(frequency: ArrayLike, X: CArray, force: ArrayLike = 1.0) -> Chain
     j = np.arange(n) - n // 2
     sign = np.where(j % 2 == 0, 1.0, -1.0)
     F = np.asarray(force)
-    return ChainSums(
-        np.asarray(frequency, dtype=float), F / X.sum(axis=1), F / (X * sign).sum(axis=1)
-    )
+    return ChainSums(np.asarray(frequency, dtype=float), F / X.sum(axis=1), F / (X * sign).sum(axis=1))
 
 
 @dataclass(frozen=True)
