@@ -547,3 +547,34 @@ def parse_assignments(items: Iterable[str]) -> dict[str, float]:
         name, _, value = item.partition("=")
         out[name.strip()] = _check_finite(name.strip(), value.strip())
     return out
+
+
+#: Every scalar model parameter: name -> (section, unit, description). The
+#: single source for CLI help, ROS parameter descriptors and docs.
+PARAMETER_DOCS: Mapping[str, tuple[str, str, str]] = {
+    "E": ("rail", "Pa", "rail Young's modulus E_r"),
+    "I": ("rail", "m^4", "rail second moment of area I_r"),
+    "rho": ("rail", "kg/m^3", "rail density rho_r"),
+    "A": ("rail", "m^2", "rail cross-section area A_r"),
+    "spacing": ("track", "m", "sleeper spacing d"),
+    "kp": ("track", "N/m", "railpad stiffness k_p"),
+    "dp": ("track", "N s/m", "railpad damping d_p"),
+    "ms": ("track", "kg", "sleeper mass per rail m"),
+    "kb": ("track", "N/m", "ballast stiffness k_b"),
+    "db": ("track", "N s/m", "ballast damping d_b"),
+    "contact_length": ("track", "m", "sleeper-ballast contact length across the track 2a"),
+    "contact_width": ("track", "m", "sleeper-ballast contact width along the track 2b"),
+    "mf": ("soil", "kg", "soil added mass m_f (Lysmer, CLM)"),
+    "kf": ("soil", "N/m", "soil stiffness k_f"),
+    "df": ("soil", "N s/m", "soil damping d_f"),
+    "kc": ("soil", "N/m", "CLM coupling stiffness k_c between neighbouring areas"),
+    "dc": ("soil", "N s/m", "CLM coupling damping d_c (normally negative, Sec. 4.2)"),
+}
+
+
+def parameter_values(params: ModelParams) -> dict[str, float]:
+    """All scalar parameters of ``params`` by name (soil ones the model does not use are 0)."""
+    out = {f.name: float(getattr(params.rail, f.name)) for f in fields(RailParams)}
+    out.update({f.name: float(getattr(params.track, f.name)) for f in fields(TrackParams)})
+    out.update({n: float(getattr(params.soil, n)) for n in SOIL_NAMES})
+    return out

@@ -1,0 +1,315 @@
+"""The track–soil node: wheel loads in, sleeper soil forces and rail deflections out.
+
+A lifecycle node (``rclpy.lifecycle``) wrapping :class:`clm_core.online.OnlineTrackModel`:
+
+- configure: read the parameters, build and validate the model (an invalid or
+  unstable set is refused with its reason and the node stays unconfigured);
+- activate: subscribe to ``wheel_loads`` and publish, for every accepted
+  message, a ``clm_msgs/SleeperResponse`` on ``sleeper_response`` and a
+  ``clm_msgs/WheelRailResponse`` on ``wheel_rail_response``, stamped with the
+  input's stamp (simulation time), plus ``/diagnostics`` every
+  ``diagnostics_period`` s.
+
+With ``autostart`` (default true) it configures and activates itself; users
+with a lifecycle manager set ``autostart:=false``. The node owns no physics:
+it converts messages at its edge and calls the core (``clm replay`` runs the
+same core offline, so the outputs are identical by construction).
+
+Run: ``clm-track-node --ros-args -p soil:=haren -p dt:=1e-4`` (or
+``ros2 run clm_ros track_node`` in a full ROS install).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.lifecycle import Node as LifecycleNode
+from rclpy.lifecycle import State, TransitionCallbackReturn
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from clm_core.errors import ClmError
+from clm_core.online import OnlineTrackModel, Rejected
+from clm_core.params import (
+    PARAMETER_DOCS,
+    SOIL_MODELS,
+    ModelParams,
+    load_model,
+    load_params_file,
+    parameter_values,
+)
+from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
+from clm_ros.conversions import frame_from_msg, rclpy_responses, stamp_ns
+
+NODE_NAME = "clm_track_node"
+
+
+def _desc(text: str, read_only: bool = False, frange: tuple[float, float] | None = None,
+          irange: tuple[int, int] | None = None) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=text, read_only=read_only)
+    if frange is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=frange[0], to_value=frange[1], step=0.0)]
+    if irange is not None:
+        d.integer_range = [IntegerRange(from_value=irange[0], to_value=irange[1], step=1)]
+    return d
+
+
+def qos_profile(depth: int, reliability: str) -> QoSProfile:
+    """QoS for the data topics (keep-last ``depth``, reliable or best effort)."""
+    rel = ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel)
+
+
+class TrackNode(LifecycleNode):
+    """Lifecycle node running the streaming track–soil model on wheel-load messages."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        dp = self.declare_parameter
+        dp("track", "mevergnies", _desc("track preset or YAML file (rail + track)", read_only=True))
+        dp("soil", "mevergnies", _desc("soil preset or YAML file", read_only=True))
+        dp("model", "clm", _desc(f"foundation model: {', '.join(SOIL_MODELS)}", read_only=True))
+        dp("params_file", "", _desc("full parameter file (rail, track, soil, overrides); replaces track/soil/model",
+                                    read_only=True))
+        dp("dt", 1.0e-4, _desc("integration time step [s]", read_only=True, frange=(1e-6, 1e-2)))
+        dp("n_sleepers", 61, _desc("sleepers in the simulated window [-]", read_only=True, irange=(11, 4001)))
+        dp("elements_per_bay", 2, _desc("rail elements per sleeper bay [-]", read_only=True, irange=(1, 16)))
+        dp("lead_sleepers", -1, _desc("sleepers kept ahead of the foremost wheel; -1: a third of the window",
+                                      read_only=True, irange=(-1, 4000)))
+        dp("max_gap", 1.0, _desc("a stamp gap above this re-synchronises the state [s]", frange=(1e-4, 1e6)))
+        dp("accept_new_wheels", False, _desc("accept wheel ids not in the first message (wheels entering)"))
+        dp("publish_every", 1, _desc("publish the response of every N-th accepted message [-] (1: all)",
+                                     irange=(1, 100000)))
+        dp("qos_depth", 1000, _desc("keep-last depth of the data topics [-]", read_only=True, irange=(1, 100000)))
+        dp("qos_reliability", "reliable", _desc("reliable or best_effort", read_only=True))
+        dp("frame_id", "track", _desc("frame id of the output headers"))
+        dp("diagnostics_period", 1.0, _desc("period of /diagnostics [s]", read_only=True, frange=(0.01, 3600.0)))
+        dp("autostart", True, _desc("configure and activate at start", read_only=True))
+        # every scalar model parameter, NaN = take it from the preset / file
+        for name, (section, unit, text) in PARAMETER_DOCS.items():
+            dp(f"{section}.{name}", math.nan, _desc(f"{text} [{unit}]; NaN: from the preset or parameter file"))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.model: OnlineTrackModel | None = None
+        self._pub_s: Any = None
+        self._pub_w: Any = None
+        self._pub_diag: Any = None
+        self._sub: Any = None
+        self._timer: Any = None
+        self._logged: set[str] = set()
+        self._lags: deque[float] = deque(maxlen=10000)
+        self._proc_wall = 0.0
+        self._proc_sim = 0.0
+        self._published = 0
+        self._received = 0
+        self._accepted_since = 0
+        if self.get_parameter("autostart").value:
+            self.trigger_configure()
+            if self.model is not None:
+                self.trigger_activate()
+
+    # ------------------------------------------------------------------ model from parameters
+
+    def _param_overrides(self, changes: dict[str, float] | None = None) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for name, (section, _, _) in PARAMETER_DOCS.items():
+            key = f"{section}.{name}"
+            v = changes[key] if changes and key in changes else self.get_parameter(key).value
+            if v is not None and not (isinstance(v, float) and math.isnan(v)):
+                out[name] = float(v)
+        return out
+
+    def build_params(self, changes: dict[str, float] | None = None) -> ModelParams:
+        """Validated ModelParams from the node parameters (plus pending ``changes``)."""
+        g = self.get_parameter
+        over = self._param_overrides(changes)
+        if g("params_file").value:
+            mp = load_params_file(g("params_file").value)
+            return mp.override(**over) if over else mp
+        model = g("model").value
+        if model not in SOIL_MODELS:
+            raise ClmError(f"model = {model!r}: one of {', '.join(SOIL_MODELS)}")
+        return load_model(g("track").value, g("soil").value, model, over)
+
+    def build_model(self, params: ModelParams, changes: dict[str, Any] | None = None) -> OnlineTrackModel:
+        """The online model (builds and factorises the simulator: refuses unstable sets)."""
+        def get(key: str) -> Any:
+            return changes[key] if changes and key in changes else self.get_parameter(key).value
+
+        lead = int(get("lead_sleepers"))
+        return OnlineTrackModel(
+            params,
+            dt=float(get("dt")),
+            n_sleepers=int(get("n_sleepers")),
+            elements_per_bay=int(get("elements_per_bay")),
+            max_gap=float(get("max_gap")),
+            accept_new_wheels=bool(get("accept_new_wheels")),
+            lead_sleepers=None if lead < 0 else lead,
+        )
+
+    def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
+        changes = {p.name: p.value for p in params}
+        physics = {k: v for k, v in changes.items() if k.split(".", 1)[-1] in PARAMETER_DOCS and "." in k}
+        if self.model is None or not (physics or "max_gap" in changes or "accept_new_wheels" in changes):
+            if "qos_reliability" in changes and changes["qos_reliability"] not in ("reliable", "best_effort"):
+                return SetParametersResult(successful=False, reason="qos_reliability: one of reliable, best_effort")
+            return SetParametersResult(successful=True)
+        try:
+            new_params = self.build_params({k: float(v) for k, v in physics.items()})
+            new_model = self.build_model(new_params, changes)
+        except (ClmError, ValueError) as exc:
+            self.get_logger().warning(f"parameter update refused: {exc}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.model = new_model
+        self.get_logger().info(f"parameters updated ({', '.join(sorted(changes))}); state restarts at the next message")
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def on_configure(self, state: State) -> TransitionCallbackReturn:
+        try:
+            params = self.build_params()
+            self.model = self.build_model(params)
+        except (ClmError, ValueError, OSError) as exc:
+            self.get_logger().error(f"configure refused: {exc}")
+            self.model = None
+            return TransitionCallbackReturn.FAILURE
+        qos = qos_profile(int(self.get_parameter("qos_depth").value), str(self.get_parameter("qos_reliability").value))
+        self._pub_s = self.create_lifecycle_publisher(SleeperResponse, "sleeper_response", qos)
+        self._pub_w = self.create_lifecycle_publisher(WheelRailResponse, "wheel_rail_response", qos)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._qos = qos
+        self.get_logger().info(
+            f"configured: {params.name or 'parameter file'}, dt = {self.model.dt:g} s, window {self.model.n_sleepers} sleepers"
+        )
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: State) -> TransitionCallbackReturn:
+        self._sub = self.create_subscription(WheelLoads, "wheel_loads", self._on_wheel_loads, self._qos)
+        self._timer = self.create_timer(float(self.get_parameter("diagnostics_period").value), self._publish_diagnostics)
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
+        if self._sub is not None:
+            self.destroy_subscription(self._sub)
+            self._sub = None
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
+        self.model = None
+        for p in (self._pub_s, self._pub_w):
+            if p is not None:
+                self.destroy_lifecycle_publisher(p)
+        self._pub_s = self._pub_w = None
+        return TransitionCallbackReturn.SUCCESS
+
+    # ------------------------------------------------------------------ data path
+
+    def _on_wheel_loads(self, msg: WheelLoads) -> None:
+        model = self.model
+        if model is None:
+            return
+        self._received += 1
+        t_ns = stamp_ns(msg.header)
+        frame = frame_from_msg(msg)
+        t_before = model.sim.t
+        w0 = time.perf_counter()
+        try:
+            resp = model.process(frame)
+        except Rejected as exc:
+            cause = exc.reason.value
+            if cause not in self._logged:
+                self._logged.add(cause)
+                self.get_logger().warning(f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): {exc}")
+            return
+        self._proc_wall += time.perf_counter() - w0
+        if not resp.resynced:
+            self._proc_sim += model.sim.t - t_before
+        elif model.stats.accepted > 1 and "resync" not in self._logged:
+            self._logged.add("resync")
+            self.get_logger().warning(f"stamp jump > max_gap: state re-synchronised at t = {frame.stamp:.6f} s")
+        every = int(self.get_parameter("publish_every").value)
+        self._accepted_since += 1
+        if self._accepted_since % every:
+            return
+        s, w = rclpy_responses(resp, t_ns, str(self.get_parameter("frame_id").value))
+        self._pub_s.publish(s)
+        self._pub_w.publish(w)
+        self._published += 1
+        now_ns = self.get_clock().now().nanoseconds
+        self._lags.append((now_ns - t_ns) / 1e9)
+
+    def _publish_diagnostics(self) -> None:
+        model = self.model
+        if model is None or self._pub_diag is None:
+            return
+        st = model.stats
+        lags = np.asarray(self._lags) if self._lags else np.zeros(1)
+        rtf = self._proc_sim / self._proc_wall if self._proc_wall > 0 else 0.0
+        values = {
+            "received": st.accepted + st.rejected_total,
+            "accepted": st.accepted,
+            "published": self._published,
+            "rejected": st.rejected_total,
+            **{f"rejected.{k}": v for k, v in sorted(st.rejected.items())},
+            "resyncs": st.resyncs,
+            "real_time_factor": f"{rtf:.3f}",
+            "lag_median_s": f"{float(np.median(lags)):.6f}",
+            "lag_p99_s": f"{float(np.percentile(lags, 99)):.6f}",
+            "sim_time_s": f"{model.sim.t + model.epoch:.6f}",
+        }
+        level = DiagnosticStatus.OK
+        message = "running"
+        if st.rejected_total:
+            level, message = DiagnosticStatus.WARN, f"{st.rejected_total} message(s) rejected"
+        if 0 < rtf < 1.0:
+            level, message = DiagnosticStatus.WARN, f"slower than real time (RTF {rtf:.2f})"
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: track-soil model", message=message,
+                                  hardware_id="clm_core",
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._pub_diag.publish(arr)
+
+    def stats(self) -> dict[str, Any]:
+        """Counters (for tests and the launcher)."""
+        st = self.model.stats if self.model else None
+        return {"received": self._received, "published": self._published,
+                "accepted": st.accepted if st else 0, "rejected": dict(st.rejected) if st else {}}
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point ``clm-track-node``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = TrackNode()
+        if node.model is None and node.get_parameter("autostart").value:
+            return 2
+        # SingleThreadedExecutor: the experimental EventsExecutor did not deliver
+        # subscription callbacks to this lifecycle node (measured on Jazzy wheels).
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
