@@ -1,7 +1,8 @@
 """The ``clm`` command: thin argument parsing around the core.
 
 Sub-commands live in :mod:`clm_core.commands` (one module each, discovered
-here). Errors from the core (:class:`clm_core.errors.ClmError`) become one
+here), and in ``clm_ros.commands`` when the ROS layer is installed (bag
+replay, record, play, the demo launcher). Errors from the core (:class:`clm_core.errors.ClmError`) become one
 readable line on stderr and exit code 2.
 """
 
@@ -26,11 +27,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"clm {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"{commands.__name__}.{info.name}")
-        register = getattr(module, "register", None)
-        if register is not None:
-            register(sub)
+    packages = [commands]
+    try:  # commands of the ROS layer (bags, replay), when clm_ros is installed
+        packages.append(importlib.import_module("clm_ros.commands"))
+    except ImportError:
+        pass
+    for package in packages:
+        for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+            module = importlib.import_module(f"{package.__name__}.{info.name}")
+            register = getattr(module, "register", None)
+            if register is not None:
+                register(sub)
     return parser
 
 

@@ -1,0 +1,92 @@
+"""``clm record`` and ``clm play``: rosbag2 record and play over DDS (rosbags, no ``ros2 bag``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import time
+from typing import Any
+
+
+def register(sub: Any) -> None:
+    """Add the ``record`` and ``play`` sub-commands."""
+    r = sub.add_parser("record", help="record topics to a rosbag2 bag (mcap or sqlite3)",
+                       description="Raw subscriptions (reliable, keep-all) written to a bag until Ctrl-C, "
+                       "--duration or --count.")
+    r.add_argument("topics", nargs="+", help="TOPIC or TOPIC:TYPE (type default: discovered on the graph)")
+    r.add_argument("--out", required=True, help="output bag directory (must not exist)")
+    r.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])
+    r.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    r.add_argument("--count", type=int, default=None, help="stop after this many messages on the first topic")
+    r.add_argument("--discovery-timeout", type=float, default=20.0, help="wait for topic types [s]")
+    r.set_defaults(func=run_record)
+    p = sub.add_parser("play", help="publish a bag's messages (real time, scaled, or flow-controlled)")
+    p.add_argument("bag")
+    p.add_argument("--topics", nargs="*", default=None, help="topics to play (default all)")
+    p.add_argument("--rate", type=float, default=1.0, help="speed factor (1 real time; 0 as fast as answered)")
+    p.add_argument("--ack-topic", default="/sleeper_response", help="answers for --rate 0 flow control")
+    p.add_argument("--max-in-flight", type=int, default=20)
+    p.set_defaults(func=run_play)
+
+
+def _init() -> Any:
+    import rclpy
+
+    rclpy.init()
+    return rclpy
+
+
+def run_record(args: argparse.Namespace) -> int:
+    """Record until stopped; print the counts as JSON."""
+    rclpy = _init()
+    from clm_ros.bag_tools import BagRecorder
+
+    node = rclpy.create_node("clm_bag_recorder")
+    stop = {"now": False}
+    signal.signal(signal.SIGINT, lambda *_: stop.__setitem__("now", True))
+    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__("now", True))
+    try:
+        topics: dict[str, str] = {}
+        t0 = time.monotonic()
+        for spec in args.topics:
+            topic, _, msgtype = spec.partition(":")
+            while not msgtype:
+                types = dict(node.get_topic_names_and_types())
+                if topic in types:
+                    msgtype = types[topic][0]
+                elif time.monotonic() - t0 > args.discovery_timeout:
+                    print(f"clm record: error: topic {topic} not seen on the graph after {args.discovery_timeout:g} s")
+                    return 2
+                else:
+                    rclpy.spin_once(node, timeout_sec=0.05)
+            topics[topic] = msgtype
+        rec = BagRecorder(node, args.out, topics, args.storage)
+        first = next(iter(topics))
+        start = time.monotonic()
+        while not stop["now"]:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            if args.duration is not None and time.monotonic() - start >= args.duration:
+                break
+            if args.count is not None and rec.counts[first] >= args.count:
+                break
+        print(json.dumps(rec.close()))
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def run_play(args: argparse.Namespace) -> int:
+    """Play a bag; print the counts as JSON."""
+    rclpy = _init()
+    from clm_ros.bag_tools import play_bag
+
+    node = rclpy.create_node("clm_bag_player")
+    try:
+        sent = play_bag(node, args.bag, args.topics, args.rate, args.ack_topic, max_in_flight=args.max_in_flight)
+        print(json.dumps(sent))
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
