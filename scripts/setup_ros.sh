@@ -25,7 +25,8 @@
 set -euo pipefail
 
 readonly RECIPE_VERSION=1   # bump to force a rebuild everywhere
-readonly REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+readonly REPO_ROOT
 readonly REQUIREMENTS="$REPO_ROOT/scripts/ros-requirements.txt"
 readonly MSGS_SRC="$REPO_ROOT/ros2_ws/src/clm_msgs"
 
@@ -63,6 +64,15 @@ readonly STATE_DIR="$VENV/var/clm_ros"
 mkdir -p "$STATE_DIR"
 readonly LOG_DIR="$STATE_DIR/logs"
 mkdir -p "$LOG_DIR"
+
+# One setup at a time per venv (several shells may bootstrap the same venv).
+if command -v flock >/dev/null; then
+    exec 9>"$STATE_DIR/setup.lock"
+    if ! flock -n 9; then
+        log "waiting for another setup_ros.sh on $VENV to finish"
+        flock 9
+    fi
+fi
 
 # --------------------------------------------------------- environment hygiene
 # A sourced ROS install or another ROS venv must not leak into this one.
@@ -248,8 +258,11 @@ for path in files:
 if dangling:
     sys.exit("setup_ros: error: include dirs that still do not exist after the fix:\n  "
              + "\n  ".join(dangling))
-print(f"setup_ros: rosidl_generator_py CMake exports: {changed} of {len(files)} rewritten "
-      f"to {py_inc} and {np_inc}")
+if changed:
+    print(f"setup_ros: rewrote the python/numpy include dirs of {changed} "
+          f"rosidl_generator_py CMake export file(s) to {py_inc} and {np_inc}")
+else:
+    print(f"setup_ros: include dirs of {len(files)} rosidl_generator_py CMake export files OK")
 EOF
 
 # ------------------------------------------------------ 4. build clm_msgs
@@ -313,15 +326,7 @@ build_failed() {
     die "$1 (full log: $BUILD_LOG; build dir kept: $BUILD_DIR)"
 }
 
-# Remove what a previous build installed (a deleted .msg must not linger).
-if [[ -f "$MANIFEST" ]]; then
-    while IFS= read -r f; do
-        case "$f" in "$VENV"/*) rm -f -- "$f" ;; esac
-    done <"$MANIFEST"
-    rm -f "$MANIFEST"
-fi
 rm -f "$STAMP"
-
 {
     echo "== configure"
     AMENT_PREFIX_PATH="$VENV" cmake -S "$MSGS_SRC" -B "$BUILD_DIR" -G "$GENERATOR" \
@@ -340,6 +345,16 @@ rm -f "$STAMP"
     echo "== install"
     cmake --install "$BUILD_DIR"
 } >>"$BUILD_LOG" 2>&1 || build_failed "install of clm_msgs into $VENV failed"
+
+# Remove what an earlier build installed and this one did not (e.g. the
+# files of a deleted .msg); installing first keeps the window in which
+# clm_msgs is incomplete as short as possible.
+if [[ -f "$MANIFEST" ]]; then
+    while IFS= read -r f; do
+        case "$f" in "$VENV"/*) rm -f -- "$f" ;; esac
+    done < <(LC_ALL=C comm -23 <(LC_ALL=C sort -u "$MANIFEST") \
+                               <(LC_ALL=C sort -u "$BUILD_DIR/install_manifest.txt"))
+fi
 cp "$BUILD_DIR/install_manifest.txt" "$MANIFEST"
 
 if ! check_import >"$LOG_DIR/check.log" 2>&1; then

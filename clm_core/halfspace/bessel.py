@@ -68,7 +68,8 @@ def _j0_scalar(z: complex) -> complex:
         if mag < 1e-17:
             break
     phase = z - 0.25 * math.pi
-    return np.sqrt(2.0 / (math.pi * z)) * (p * np.cos(phase) - qq * np.sin(phase))
+    out: complex = np.sqrt(2.0 / (math.pi * z)) * (p * np.cos(phase) - qq * np.sin(phase))
+    return out
 
 
 @nb.njit(cache=True, parallel=True)

@@ -59,20 +59,20 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import special
+from scipy import sparse, special
 
 from clm_core.errors import ParameterError
 from clm_core.halfspace.bessel import j0_outer
 from clm_core.halfspace.profile import Layer, SoilProfile
 
 __all__ = [
+    "KernelEngine",
     "RadialKernel",
-    "WavenumberPath",
     "asymptotic_coefficient",
+    "default_k_max",
     "point_load_displacement",
     "radial_kernel",
     "surface_flexibility_k",
-    "wavenumber_path",
 ]
 
 ComplexArray = NDArray[np.complex128]
@@ -136,9 +136,7 @@ def _halfspace_dynamic(k: ComplexArray, layer: Layer, omega: float) -> ComplexAr
     t = 2.0 * k * k - ks2
     ik = 1j * k
     D = np.stack([np.stack([-ik, be], -1), np.stack([-al, -ik], -1)], axis=1)
-    S = np.stack(
-        [np.stack([-mu * 2.0 * ik * al, mu * t], -1), np.stack([-mu * t, -mu * 2.0 * ik * be], -1)], axis=1
-    )
+    S = np.stack([np.stack([-mu * 2.0 * ik * al, mu * t], -1), np.stack([-mu * t, -mu * 2.0 * ik * be], -1)], axis=1)
     KT = np.linalg.solve(np.swapaxes(D, 1, 2), np.swapaxes(S, 1, 2))
     return np.swapaxes(KT, 1, 2)
 
@@ -266,99 +264,18 @@ def asymptotic_coefficient(layer: Layer, omega: float) -> complex:
 
 
 # ----------------------------------------------------------------------------
-# integration path
+# quadrature helpers
 # ----------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class WavenumberPath:
-    """Quadrature of int_0^inf f(k) dk on a deformed path: sum w_j f(k_j).
-
-    Attributes
-    ----------
-    k : ndarray of complex
-        Nodes [1/m] (first quadrant; the tail on the real axis).
-    w : ndarray of complex
-        Weights dk [1/m].
-    k_e : float
-        End of the half-ellipse on the real axis [1/m].
-    height : float
-        Height of the half-ellipse [1/m].
-    k_max : float
-        Truncation of the real tail [1/m].
-    """
-
-    k: ComplexArray
-    w: ComplexArray
-    k_e: float
-    height: float
-    k_max: float
-
-
 def _gl_panels(a: float, b: float, n_panels: int) -> tuple[FloatArray, FloatArray]:
+    """Composite 10-point Gauss–Legendre nodes and weights on [a, b] with equal panels."""
     edges = np.linspace(a, b, n_panels + 1)
     half = 0.5 * np.diff(edges)
     mid = 0.5 * (edges[1:] + edges[:-1])
     x = (mid[:, None] + half[:, None] * _GL_X[None, :]).ravel()
     w = (half[:, None] * _GL_W[None, :]).ravel()
     return x, w
-
-
-def wavenumber_path(
-    profile: SoilProfile,
-    omega: float,
-    r_max: float,
-    *,
-    k_max: float | None = None,
-    resolution: float = 1.0,
-) -> WavenumberPath:
-    """Integration path for the radial wavenumber integrals at ``omega``.
-
-    Parameters
-    ----------
-    profile : SoilProfile
-        Soil (sets the wave speeds and the layer depth scale).
-    omega : float
-        Circular frequency [rad/s], >= 0 (0: real axis only).
-    r_max : float
-        Largest radius the integral is needed at [m]; sets the ellipse height
-        (<= 2.5 / r_max) and the panel length (<= 2 pi / r_max).
-    k_max : float, optional
-        Truncation of the real tail [1/m]; default
-        max(16 |ks|_max, 24 / h_1, 1.5 K_e), h_1 the top layer thickness.
-    resolution : float
-        Multiplies the number of panels (convergence checks).
-    """
-    if r_max <= 0:
-        raise ParameterError(f"r_max = {r_max}: must be > 0")
-    h1 = profile.first_interface_depth
-    ks_max = omega / profile.min_cs
-    k_e = 1.5 * ks_max
-    if k_max is None:
-        k_max = max(16.0 * ks_max, 1.5 * k_e)
-        if h1 is not None:
-            k_max = max(k_max, 24.0 / h1)
-        k_max = max(k_max, 20.0 / r_max)
-    panel_real = min(2.0 * math.pi / r_max, 0.25 * max(k_max - k_e, 1e-12)) / resolution
-    if omega == 0.0:
-        n_tail = max(4, math.ceil(k_max / panel_real))
-        x, w = _gl_panels(0.0, k_max, n_tail)
-        return WavenumberPath(k=x.astype(np.complex128), w=w.astype(np.complex128), k_e=0.0, height=0.0, k_max=k_max)
-    s = 2.0 * abs(omega / profile.top.cs)
-    height = min(0.25 * k_e, 2.5 / r_max, 0.5 * s)
-    # half-ellipse k(t) = k_e/2 (1 - cos pi t) + i H sin(pi t), t in [0, 1]
-    arc = 0.5 * math.pi * math.sqrt(0.5 * ((0.5 * k_e) ** 2 + height**2))  # ~ quarter perimeter x 2
-    arc = 2.0 * arc
-    panel_len = min(2.5 * height, 2.0 * math.pi / r_max) / resolution
-    n_ell = max(6, math.ceil(arc / panel_len))
-    t, wt = _gl_panels(0.0, 1.0, n_ell)
-    ke = k_e * 0.5 * (1.0 - np.cos(math.pi * t)) + 1j * height * np.sin(math.pi * t)
-    dk = k_e * 0.5 * math.pi * np.sin(math.pi * t) + 1j * height * math.pi * np.cos(math.pi * t)
-    n_tail = max(4, math.ceil((k_max - k_e) / panel_real))
-    x, w = _gl_panels(k_e, k_max, n_tail)
-    k = np.concatenate([ke, x.astype(np.complex128)])
-    wk = np.concatenate([wt * dk, w.astype(np.complex128)])
-    return WavenumberPath(k=k, w=wk, k_e=k_e, height=height, k_max=k_max)
 
 
 # ----------------------------------------------------------------------------
@@ -401,13 +318,12 @@ class RadialKernel:
         return np.asarray(self.c0 / rq + self.smooth(rq), dtype=np.complex128)
 
 
-def lagrange_weights(grid: FloatArray, rq: FloatArray) -> "object":
+def lagrange_weights(grid: FloatArray, rq: FloatArray) -> sparse.csr_matrix:
     """Sparse matrix (len(rq), len(grid)) of 4-point Lagrange interpolation weights on a uniform grid.
 
     The stencil is clamped at both ends (one-sided near r = 0, so that the
     cone term ~ r of the Green's function is reproduced exactly).
     """
-    from scipy import sparse
 
     n = grid.shape[0]
     dr = grid[1] - grid[0]
@@ -429,16 +345,152 @@ def lagrange_weights(grid: FloatArray, rq: FloatArray) -> "object":
     return sparse.csr_matrix((w.ravel(), (rows, cols)), shape=(rq.shape[0], n))
 
 
+def default_k_max(profile: SoilProfile, omega: float, r_max: float, factor: float = 12.0) -> float:
+    """Truncation of the real tail of the wavenumber integral [1/m].
+
+    max(factor |ks|_max, 1.5 K_e, 24 / h_1, 20 / r_max): the remainder R(k)
+    decays as k^-5 beyond the shear wavenumbers (relative truncation error
+    ~ (ks / k_max)^3 / 3) and the static layer terms as exp(-2 k h_1).
+    """
+    ks_max = omega / profile.min_cs
+    k_max = max(factor * ks_max, 2.25 * ks_max, 20.0 / r_max)
+    h1 = profile.first_interface_depth
+    if h1 is not None:
+        k_max = max(k_max, 24.0 / h1)
+    return k_max
+
+
+class KernelEngine:
+    """Radial Green's functions of one profile on a fixed radial grid, for many frequencies.
+
+    The real-axis tail of the wavenumber integral uses a fixed,
+    frequency-independent Gauss–Legendre panel grid (panel length
+    min(2 pi / r_max, 4 / h_1), 10 points), whose J0(k r) table is computed
+    once; per frequency only the half-ellipse (complex k, from 0 to the
+    first panel edge beyond 1.5 |ks|_max, panels no longer than 2.5 times
+    its height, than the real panels and than 1/6 of 1.5 |ks|_max) is
+    evaluated anew. This is what makes a 151-frequency sweep cheap.
+
+    Parameters
+    ----------
+    profile : SoilProfile
+        Soil.
+    r_max : float
+        Largest radius needed [m].
+    dr : float
+        Radial grid step [m] (<= lambda_R,min / 16 at the highest frequency).
+    f_max : float
+        Highest frequency [Hz] (sets the extent of the fixed k grid).
+    resolution : float
+        Multiplies the density of the k quadrature (convergence checks).
+    k_factor : float
+        k_max = k_factor |ks|_max (see :func:`default_k_max`).
+    """
+
+    def __init__(
+        self,
+        profile: SoilProfile,
+        r_max: float,
+        dr: float,
+        f_max: float,
+        *,
+        resolution: float = 1.0,
+        k_factor: float = 12.0,
+    ) -> None:
+        if not (r_max > 0 and math.isfinite(r_max)):
+            raise ParameterError(f"r_max = {r_max}: must be > 0 [m]")
+        if not (dr > 0 and math.isfinite(dr)):
+            raise ParameterError(f"dr = {dr}: must be > 0 [m]")
+        if not (f_max >= 0 and math.isfinite(f_max)):
+            raise ParameterError(f"f_max = {f_max}: must be >= 0 [Hz]")
+        self.profile = profile
+        self.dr = float(dr)
+        n = int(math.ceil(r_max / dr)) + 4
+        self.r: FloatArray = np.arange(n, dtype=np.float64) * self.dr
+        self.r_top = float(self.r[-1])
+        self.resolution = resolution
+        self.k_factor = k_factor
+        panel = 2.0 * math.pi / self.r_top
+        h1 = profile.first_interface_depth
+        if h1 is not None:
+            panel = min(panel, 4.0 / h1)
+        self.panel = panel / resolution
+        self.f_max = f_max
+        k_top = default_k_max(profile, 2.0 * math.pi * f_max, self.r_top, k_factor)
+        self.n_panels = int(math.ceil(k_top / self.panel)) + 1
+        edges = np.arange(self.n_panels + 1) * self.panel
+        self.edges = edges
+        x, w = _gl_panels(0.0, float(edges[-1]), self.n_panels)
+        self.k_real = x
+        self.w_real = w
+        self._J0_real: FloatArray | None = None
+
+    @property
+    def J0_real(self) -> FloatArray:
+        """J0(k r) on the fixed real grid, shape (n_r, n_k) (computed on first use)."""
+        if self._J0_real is None:
+            self._J0_real = np.asarray(special.j0(np.outer(self.r, self.k_real)), dtype=np.float64)
+        return self._J0_real
+
+    def __call__(self, omega: float) -> RadialKernel:
+        """The radial kernel u_z(r)/P at circular frequency ``omega`` [rad/s]."""
+        profile = self.profile
+        if omega < 0 or omega > 2.0 * math.pi * self.f_max * (1 + 1e-9) + 1e-12:
+            raise ParameterError(f"omega = {omega:g} rad/s: must lie in [0, 2 pi f_max = {2 * math.pi * self.f_max:g}]")
+        top = profile.top
+        _, mu1 = top.lame(omega)
+        c0 = complex((1.0 - top.nu) / (2.0 * math.pi * mu1))
+        n = self.r.size
+        gs = np.zeros(n, dtype=np.complex128)
+        if omega == 0.0 and profile.is_homogeneous:
+            return RadialKernel(omega=omega, c0=c0, r=self.r, gs=gs)
+        k_max = default_k_max(profile, omega, self.r_top, self.k_factor)
+        p_end = min(self.n_panels, int(math.ceil(k_max / self.panel)))
+        A = asymptotic_coefficient(top, omega)
+        s = 2.0 * omega / top.cs
+        if omega == 0.0:
+            p_start = 0
+        else:
+            ks_max = omega / profile.min_cs
+            p_start = min(int(math.ceil(1.5 * ks_max / self.panel)), p_end - 1)
+            p_start = max(p_start, 1)
+            k_e = float(self.edges[p_start])
+            k_nom = 1.5 * ks_max
+            height = min(0.25 * k_nom, 2.5 / self.r_top, 0.5 * s)
+            arc = 0.5 * math.pi * math.sqrt(0.5 * ((0.5 * k_e) ** 2 + height**2)) * 2.0
+            panel_len = min(2.5 * height, self.panel * self.resolution, k_nom / 6.0) / self.resolution
+            n_ell = max(6, math.ceil(arc / panel_len))
+            t, wt = _gl_panels(0.0, 1.0, n_ell)
+            ke = k_e * 0.5 * (1.0 - np.cos(math.pi * t)) + 1j * height * np.sin(math.pi * t)
+            dk = k_e * 0.5 * math.pi * np.sin(math.pi * t) + 1j * height * math.pi * np.cos(math.pi * t)
+            G = surface_flexibility_k(profile, ke, omega)
+            R = G - (1.0 - top.nu) / (mu1 * ke) - A / (ke**2 + s**2) ** 1.5
+            gs += j0_outer(self.r, ke) @ (R * ke * wt * dk / (2.0 * math.pi))
+        sl = slice(p_start * _GL_N, p_end * _GL_N)
+        kr = self.k_real[sl]
+        if kr.size:
+            G = surface_flexibility_k(profile, kr, omega)
+            R = G - (1.0 - top.nu) / (mu1 * kr)
+            if omega > 0:
+                R = R - A / (kr**2 + s**2) ** 1.5
+            f = R * kr * self.w_real[sl] / (2.0 * math.pi)
+            J = self.J0_real[:, sl]
+            gs += J @ f.real + 1j * (J @ f.imag)
+        if omega > 0:
+            gs += A * np.exp(-s * self.r) / (2.0 * math.pi * s)
+        return RadialKernel(omega=omega, c0=c0, r=self.r, gs=gs)
+
+
 def radial_kernel(
     profile: SoilProfile,
     omega: float,
     r_max: float,
     dr: float,
     *,
-    k_max: float | None = None,
     resolution: float = 1.0,
+    k_factor: float = 12.0,
 ) -> RadialKernel:
-    """Point-load surface Green's function on a radial grid, see the module docstring.
+    """Point-load surface Green's function on a radial grid (one frequency), see the module docstring.
 
     Parameters
     ----------
@@ -450,37 +502,12 @@ def radial_kernel(
         Largest radius needed [m] (the grid extends 3 steps beyond).
     dr : float
         Grid step [m]; the smooth part varies on the scale of the shortest
-        wavelength and of the top layer thickness: dr <= lambda_min / 20.
-    k_max, resolution
-        See :func:`wavenumber_path`.
+        wavelength and of the top layer thickness: dr <= lambda_R,min / 16.
+    resolution, k_factor
+        See :class:`KernelEngine`.
     """
-    if dr <= 0:
-        raise ParameterError(f"dr = {dr}: must be > 0")
-    n = int(math.ceil(r_max / dr)) + 4
-    r = np.arange(n) * dr
-    top = profile.top
-    _, mu1 = top.lame(omega)
-    c0 = (1.0 - top.nu) / (2.0 * math.pi * mu1)
-    if omega == 0.0 and profile.is_homogeneous:
-        return RadialKernel(omega=omega, c0=complex(c0), r=r, gs=np.zeros(n, dtype=np.complex128))
-    path = wavenumber_path(profile, omega, float(r[-1]), k_max=k_max, resolution=resolution)
-    G = surface_flexibility_k(profile, path.k, omega)
-    A = asymptotic_coefficient(top, omega)
-    s = 2.0 * omega / top.cs if omega > 0 else 1.0
-    Rk = G - (1.0 - top.nu) / (mu1 * path.k) - A / (path.k**2 + s**2) ** 1.5
-    f = Rk * path.k * path.w / (2.0 * math.pi)
-    real_tail = np.abs(path.k.imag) == 0.0
-    gs = np.zeros(n, dtype=np.complex128)
-    if np.any(~real_tail):
-        J = j0_outer(r, path.k[~real_tail])
-        gs += J @ f[~real_tail]
-    if np.any(real_tail):
-        kr = path.k[real_tail].real
-        J0 = special.j0(np.outer(r, kr))
-        gs += J0 @ f[real_tail]
-    if omega > 0:
-        gs += A * np.exp(-s * r) / (2.0 * math.pi * s)
-    return RadialKernel(omega=omega, c0=complex(c0), r=r, gs=gs)
+    eng = KernelEngine(profile, r_max, dr, omega / (2.0 * math.pi), resolution=resolution, k_factor=k_factor)
+    return eng(omega)
 
 
 def point_load_displacement(
@@ -501,11 +528,11 @@ def point_load_displacement(
         Circular frequency [rad/s].
     **kwargs
         ``dr`` (grid step, default min(r_max/400, lambda_min/30)) and the
-        options of :func:`wavenumber_path`.
+        options of :class:`KernelEngine` (``resolution``, ``k_factor``).
     """
     rr = np.asarray(r, dtype=float)
     r_max = float(rr.max())
     lam_min = 2.0 * math.pi * profile.min_cs / omega if omega > 0 else math.inf
     dr = float(kwargs.pop("dr", min(r_max / 400.0, lam_min / 30.0)))
-    ker = radial_kernel(profile, omega, r_max, dr, **kwargs)  # type: ignore[arg-type]
+    ker = radial_kernel(profile, omega, r_max, dr, **kwargs)
     return ker(rr)

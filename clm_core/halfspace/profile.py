@@ -25,8 +25,13 @@ beta = 0.0004 s, i.e. an equivalent damping ratio w beta / 2 = 1.3 % at
 10 Hz and 19 % at 150 Hz) and ``xi`` [-] an optional frequency-independent
 hysteretic damping ratio. Poisson's ratio is real, so the Lamé constants
 and both body-wave moduli carry the same factor. Wave speeds ``cp``, ``cs``
-in a preset are informative; they are checked against E, nu, rho (within
-5 %) but never used: the elastic speeds follow from E, nu and rho.
+in a preset are informative and never used: the elastic speeds follow from
+E, nu and rho. A given speed that differs from the computed one by more than
+5 % is recorded in :attr:`SoilProfile.notes` (the Haren preset, Table 4 of
+the paper, gives c_s = 170 m/s for layer 2 where E = 84 MPa, nu = 0.13,
+rho = 1876 kg/m^3 give 140.8 m/s; its c_p = 215 m/s agrees with E, so the
+table's c_s is the inconsistent entry: c_p / c_s = 1.26 < sqrt(2) would
+need a negative Poisson's ratio).
 
 This loader is independent of :mod:`clm_core.params` on purpose (the two are
 developed in parallel); both read the same files.
@@ -45,7 +50,7 @@ import yaml
 
 from clm_core.errors import ParameterError, PresetError
 
-__all__ = ["Layer", "SoilProfile", "load_profile", "profile_from_mapping", "list_soil_presets"]
+__all__ = ["Layer", "SoilProfile", "list_soil_presets", "load_profile", "profile_from_mapping"]
 
 #: Relative tolerance of the consistency check of preset cp, cs against E, nu, rho.
 SPEED_TOLERANCE = 0.05
@@ -150,20 +155,21 @@ class SoilProfile:
         Label (preset name or file stem).
     source : str
         Where the data come from.
+    notes : tuple of str
+        Remarks found while reading (e.g. wave speeds inconsistent with E, nu, rho).
     """
 
     layers: tuple[Layer, ...]
     name: str = "profile"
     source: str = ""
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if len(self.layers) == 0:
             raise ParameterError("profile.layers = []: need at least the half-space")
         for i, layer in enumerate(self.layers[:-1]):
             if layer.thickness is None:
-                raise ParameterError(
-                    f"profile.layers[{i}].thickness = null: only the last entry may be the half-space"
-                )
+                raise ParameterError(f"profile.layers[{i}].thickness = null: only the last entry may be the half-space")
         if self.layers[-1].thickness is not None:
             raise ParameterError(
                 f"profile.layers[{len(self.layers) - 1}].thickness = {self.layers[-1].thickness}: "
@@ -222,14 +228,12 @@ class SoilProfile:
 _LAYER_KEYS = {"thickness", "E", "rho", "nu", "beta", "xi", "cp", "cs"}
 
 
-def _layer_from_mapping(i: int, data: Mapping[str, Any]) -> Layer:
+def _layer_from_mapping(i: int, data: Mapping[str, Any], notes: list[str]) -> Layer:
     if not isinstance(data, Mapping):
         raise PresetError(f"profile.layers[{i}] = {data!r}: must be a mapping")
     unknown = set(data) - _LAYER_KEYS
     if unknown:
-        raise PresetError(
-            f"profile.layers[{i}]: unknown key(s) {sorted(unknown)}; allowed: {sorted(_LAYER_KEYS)}"
-        )
+        raise PresetError(f"profile.layers[{i}]: unknown key(s) {sorted(unknown)}; allowed: {sorted(_LAYER_KEYS)}")
     for key in ("E", "rho", "nu"):
         if key not in data:
             raise PresetError(f"profile.layers[{i}].{key}: missing")
@@ -253,9 +257,9 @@ def _layer_from_mapping(i: int, data: Mapping[str, Any]) -> Layer:
             continue
         g = _finite(f"profile.layers[{i}].{key}", given)
         if abs(g - value) > SPEED_TOLERANCE * value:
-            raise ParameterError(
-                f"profile.layers[{i}].{key} = {g:g} m/s: inconsistent with E, nu, rho "
-                f"({value:.1f} m/s); rule: within {SPEED_TOLERANCE:.0%}"
+            notes.append(
+                f"layers[{i}].{key} = {g:g} m/s differs from {value:.1f} m/s computed from E, nu, rho "
+                f"by {100 * (g / value - 1):+.0f} %; E, nu, rho are used"
             )
     return layer
 
@@ -281,8 +285,9 @@ def profile_from_mapping(data: Mapping[str, Any], name: str = "profile", source:
     layers_data = prof["layers"]
     if not isinstance(layers_data, Sequence) or isinstance(layers_data, str | bytes):
         raise PresetError(f"profile '{name}'.layers = {layers_data!r}: must be a list")
-    layers = tuple(_layer_from_mapping(i, d) for i, d in enumerate(layers_data))
-    return SoilProfile(layers=layers, name=name, source=source)
+    notes: list[str] = []
+    layers = tuple(_layer_from_mapping(i, d, notes) for i, d in enumerate(layers_data))
+    return SoilProfile(layers=layers, name=name, source=source, notes=tuple(notes))
 
 
 def list_soil_presets() -> list[str]:

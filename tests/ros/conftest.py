@@ -115,9 +115,7 @@ def make_ros_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[
     env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy; warns if set with the above
     env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
     env["PYTHONUNBUFFERED"] = "1"
-    env["PYTHONPATH"] = os.pathsep.join(
-        p for p in (str(CLM_ROS_SRC), env.get("PYTHONPATH", "")) if p
-    )
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(CLM_ROS_SRC), env.get("PYTHONPATH", "")) if p)
     return env
 
 
@@ -151,9 +149,7 @@ class RosPython:
         path.write_text(textwrap.dedent(code), encoding="utf-8")
         return path
 
-    def spawn(
-        self, code: str, args: Sequence[str] = (), *, name: str = "snippet"
-    ) -> subprocess.Popen[str]:
+    def spawn(self, code: str, args: Sequence[str] = (), *, name: str = "snippet") -> subprocess.Popen[str]:
         """Start ``code`` in a new process; stdout and stderr are pipes (text)."""
         script = self._script(code, name)
         proc = subprocess.Popen(
@@ -182,9 +178,7 @@ class RosPython:
         out, err = self.wait(proc, timeout)
         result = subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
         if check and proc.returncode != 0:
-            pytest.fail(
-                f"{name} exited with {proc.returncode}\n--- stdout\n{out}\n--- stderr\n{err}"
-            )
+            pytest.fail(f"{name} exited with {proc.returncode}\n--- stdout\n{out}\n--- stderr\n{err}")
         return result
 
     @staticmethod
@@ -196,8 +190,7 @@ class RosPython:
             proc.kill()
             out, err = proc.communicate()
             pytest.fail(
-                f"process {proc.args} did not finish within {timeout} s\n"
-                f"--- stdout\n{out}\n--- stderr\n{err}"
+                f"process {proc.args!r} did not finish within {timeout} s\n--- stdout\n{out}\n--- stderr\n{err}"
             )
 
     def cleanup(self) -> None:

@@ -21,10 +21,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 pytestmark = pytest.mark.ros
 
-HAVE_RCLPY = (
-    importlib.util.find_spec("rclpy") is not None
-    and importlib.util.find_spec("clm_msgs") is not None
-)
+HAVE_RCLPY = importlib.util.find_spec("rclpy") is not None and importlib.util.find_spec("clm_msgs") is not None
 
 WHEELS_TOPIC = "/clm/wheel_loads"
 SLEEPERS_TOPIC = "/clm/sleeper_response"
@@ -69,9 +66,7 @@ def _write_bag(path: Path, storage: StoragePlugin) -> tuple[Any, list[tuple[Any,
     written = []
     with Writer(path, version=9, storage_plugin=storage) as writer:
         c_wheels = writer.add_connection(WHEELS_TOPIC, "clm_msgs/msg/WheelLoads", typestore=ts)
-        c_sleepers = writer.add_connection(
-            SLEEPERS_TOPIC, "clm_msgs/msg/SleeperResponse", typestore=ts
-        )
+        c_sleepers = writer.add_connection(SLEEPERS_TOPIC, "clm_msgs/msg/SleeperResponse", typestore=ts)
         for k in range(N):
             wheels, sleepers = _messages(ts, k)
             t = T0_NS + k * 1_000_000
@@ -108,9 +103,7 @@ def _same_sleepers(got: Any, want: Any) -> None:
         np.testing.assert_array_equal(np.asarray(getattr(got, name)), getattr(want, name), name)
 
 
-@pytest.mark.parametrize(
-    "storage", [StoragePlugin.MCAP, StoragePlugin.SQLITE3], ids=["mcap", "sqlite3"]
-)
+@pytest.mark.parametrize("storage", [StoragePlugin.MCAP, StoragePlugin.SQLITE3], ids=["mcap", "sqlite3"])
 def test_bag_roundtrip_with_embedded_definitions(tmp_path: Path, storage: StoragePlugin) -> None:
     bag = tmp_path / "bag"
     ts, written = _write_bag(bag, storage)
@@ -136,9 +129,7 @@ def test_bag_roundtrip_with_embedded_definitions(tmp_path: Path, storage: Storag
             assert (timestamp - T0_NS) % 1_000_000 == 0
 
     assert len(got[WHEELS_TOPIC]) == len(got[SLEEPERS_TOPIC]) == N
-    for (wheels, sleepers), g_wheels, g_sleepers in zip(
-        written, got[WHEELS_TOPIC], got[SLEEPERS_TOPIC], strict=True
-    ):
+    for (wheels, sleepers), g_wheels, g_sleepers in zip(written, got[WHEELS_TOPIC], got[SLEEPERS_TOPIC], strict=True):
         _same_wheels(g_wheels, wheels)
         _same_sleepers(g_sleepers, sleepers)
 

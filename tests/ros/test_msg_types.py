@@ -39,9 +39,7 @@ def ts() -> Any:
 
 def _header(ts: Any, sec: int, nanosec: int, frame_id: str) -> Any:
     T = ts.types
-    return T["std_msgs/msg/Header"](
-        stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id
-    )
+    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id)
 
 
 def _wheel_loads(ts: Any, n: int) -> Any:
@@ -55,9 +53,7 @@ def _wheel_loads(ts: Any, n: int) -> Any:
         )
         for i in range(n)
     ]
-    return T["clm_msgs/msg/WheelLoads"](
-        header=_header(ts, 1_700_000_000, 999_999_999, "line_A"), wheels=wheels
-    )
+    return T["clm_msgs/msg/WheelLoads"](header=_header(ts, 1_700_000_000, 999_999_999, "line_A"), wheels=wheels)
 
 
 def _sleeper_response(ts: Any, n: int) -> Any:
@@ -147,9 +143,7 @@ def test_wheel_rail_response_rclpy_to_rosbags_and_back(ts: Any) -> None:
     assert msg.wheel_id.dtype == np.uint32
     _check_arrays(msg, ros_msg, WHEEL_RAIL_FIELDS)
 
-    again = deserialize_message(
-        bytes(ts.serialize_cdr(msg, "clm_msgs/msg/WheelRailResponse")), WheelRailResponse
-    )
+    again = deserialize_message(bytes(ts.serialize_cdr(msg, "clm_msgs/msg/WheelRailResponse")), WheelRailResponse)
     _check_arrays(again, ros_msg, WHEEL_RAIL_FIELDS)
 
 
@@ -162,9 +156,7 @@ def test_calibrate_service_parts(ts: Any) -> None:
         push_to_node=True,
         target_node="/clm_track",
     )
-    got = deserialize_message(
-        bytes(ts.serialize_cdr(req, "clm_msgs/srv/Calibrate_Request")), Calibrate.Request
-    )
+    got = deserialize_message(bytes(ts.serialize_cdr(req, "clm_msgs/srv/Calibrate_Request")), Calibrate.Request)
     assert (got.bag_path, got.method, got.options_yaml, got.push_to_node, got.target_node) == (
         req.bag_path,
         req.method,
@@ -186,6 +178,20 @@ def test_calibrate_service_parts(ts: Any) -> None:
         res.parameters_yaml,
         res.metrics_json,
     )
+
+    # Service introspection event (what `ros2 bag record` stores for services).
+    info = T["service_msgs/msg/ServiceEventInfo"](
+        event_type=1,
+        stamp=T["builtin_interfaces/msg/Time"](sec=5, nanosec=6),
+        client_gid=np.arange(16, dtype=np.uint8),
+        sequence_number=42,
+    )
+    event = T["clm_msgs/srv/Calibrate_Event"](info=info, request=[req], response=[])
+    got_event = deserialize_message(bytes(ts.serialize_cdr(event, "clm_msgs/srv/Calibrate_Event")), Calibrate.Event)
+    assert got_event.info.sequence_number == 42
+    assert list(got_event.info.client_gid) == list(range(16))
+    assert [r.method for r in got_event.request] == ["receptance"]
+    assert list(got_event.response) == []
 
 
 def _installed_share() -> Path:
@@ -213,14 +219,10 @@ def test_installed_definitions_match_the_source_tree() -> None:
     share = _installed_share()
     src = source_interface_dir()
     src_files = sorted(p.relative_to(src) for p in (*src.glob("msg/*.msg"), *src.glob("srv/*.srv")))
-    inst_files = sorted(
-        p.relative_to(share) for p in (*share.glob("msg/*.msg"), *share.glob("srv/*.srv"))
-    )
+    inst_files = sorted(p.relative_to(share) for p in (*share.glob("msg/*.msg"), *share.glob("srv/*.srv")))
     assert inst_files == src_files
     for rel in src_files:
-        assert (share / rel).read_text() == (src / rel).read_text(), (
-            f"{rel} differs: rebuild clm_msgs"
-        )
+        assert (share / rel).read_text() == (src / rel).read_text(), f"{rel} differs: rebuild clm_msgs"
 
 
 def test_rihs01_hashes_match_rosidl(ts: Any) -> None:

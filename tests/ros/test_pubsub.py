@@ -161,9 +161,7 @@ def _last_json(out: str) -> dict[str, Any]:
 def test_wheel_loads_between_two_processes(ros_python: RosPython) -> None:
     discovery = ros_python.discovery_timeout
     timeout = discovery + N_MESSAGES / RATE_HZ + 30.0
-    sub = ros_python.spawn(
-        SUBSCRIBER, [TOPIC, str(N_MESSAGES), str(N_WHEELS), str(timeout)], name="subscriber"
-    )
+    sub = ros_python.spawn(SUBSCRIBER, [TOPIC, str(N_MESSAGES), str(N_WHEELS), str(timeout)], name="subscriber")
     pub = ros_python.run(
         PUBLISHER,
         [TOPIC, str(N_MESSAGES), str(RATE_HZ), str(N_WHEELS), str(discovery)],
@@ -187,9 +185,7 @@ def test_wheel_loads_between_two_processes(ros_python: RosPython) -> None:
     assert got["received"] == sent["sent"], report
 
 
-def test_domains_are_isolated(
-    ros_python: RosPython, new_ros_python: Callable[[], RosPython]
-) -> None:
+def test_domains_are_isolated(ros_python: RosPython, new_ros_python: Callable[[], RosPython]) -> None:
     """A subscriber in another domain is not discovered and receives nothing."""
     other = new_ros_python()
     assert other.domain_id != ros_python.domain_id

@@ -106,7 +106,8 @@ def play_bag(
     ack_type: str = "clm_msgs/msg/SleeperResponse",
     max_in_flight: int = 20,
     discovery_timeout: float = 20.0,
-    idle_timeout: float = 10.0,
+    idle_timeout: float = 30.0,
+    min_subscribers: int = 1,
 ) -> dict[str, int]:
     """Publish a bag's messages on their topics.
 
@@ -129,21 +130,30 @@ def play_bag(
         Wait this long for at least one subscriber per topic [s].
     idle_timeout : float
         With flow control: give up when no answer came for this long [s].
+    min_subscribers : int
+        Subscribers each topic must have before playing starts (count a
+        recorder in the same graph too).
 
     Returns
     -------
     dict topic -> messages published
     """
     import rclpy
+    from rclpy.executors import SingleThreadedExecutor
 
     if rate < 0:
         raise ClmRosError(f"rate = {rate}: must be >= 0 (0: as fast as the subscriber takes them)")
     if rate == 0 and not ack_topic:
         raise ClmRosError("rate = 0 needs ack_topic (the topic that answers each message) for flow control")
     acked = [0]
+    ack_sub = None
     if rate == 0:
-        node.create_subscription(message_class(ack_type), ack_topic, lambda _m: acked.__setitem__(0, acked[0] + 1), data_qos())
+        ack_sub = node.create_subscription(
+            message_class(ack_type), ack_topic, lambda _m: acked.__setitem__(0, acked[0] + 1), data_qos())
     sent: dict[str, int] = {}
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    spin = executor.spin_once
     reader = open_reader(path)
     try:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
@@ -155,11 +165,15 @@ def play_bag(
                 pubs[c.topic] = node.create_publisher(message_class(c.msgtype), c.topic, data_qos())
                 sent[c.topic] = 0
         t0 = time.monotonic()
-        while any(p.get_subscription_count() < 1 for p in pubs.values()):
+        while any(p.get_subscription_count() < min_subscribers for p in pubs.values()) or (
+            ack_sub is not None and ack_sub.get_publisher_count() < 1
+        ):
             if time.monotonic() - t0 > discovery_timeout:
-                missing = [t for t, p in pubs.items() if p.get_subscription_count() < 1]
+                missing = [t for t, p in pubs.items() if p.get_subscription_count() < min_subscribers]
+                if ack_sub is not None and ack_sub.get_publisher_count() < 1:
+                    missing.append(f"publisher of {ack_topic}")
                 raise ClmRosError(f"no subscriber on {missing} after {discovery_timeout:g} s")
-            rclpy.spin_once(node, timeout_sec=0.02)
+            spin(timeout_sec=0.02)
         start_wall = time.monotonic()
         start_bag: int | None = None
         total = 0
@@ -169,12 +183,12 @@ def play_bag(
             if rate > 0:
                 due = start_wall + (bag_t - start_bag) / 1e9 / rate
                 while (wait := due - time.monotonic()) > 0:
-                    rclpy.spin_once(node, timeout_sec=min(wait, 0.01))
+                    spin(timeout_sec=min(wait, 0.01))
             else:
                 last = time.monotonic()
                 while total - acked[0] >= max_in_flight:
                     before = acked[0]
-                    rclpy.spin_once(node, timeout_sec=0.01)
+                    spin(timeout_sec=0.01)
                     if acked[0] != before:
                         last = time.monotonic()
                     elif time.monotonic() - last > idle_timeout:
@@ -186,4 +200,8 @@ def play_bag(
             p.wait_for_all_acked(rclpy.duration.Duration(seconds=10))
     finally:
         reader.close()
+        if ack_sub is not None:
+            node.destroy_subscription(ack_sub)
+        executor.remove_node(node)
+        executor.shutdown()
     return sent

@@ -8,7 +8,11 @@ Only ``rosbags`` is imported here; no rclpy is needed.
 
 Services are registered the way ROS 2 Jazzy names them in bags and over DDS:
 ``clm_msgs/srv/<Name>_Request``, ``_Response`` and ``_Event`` (the service
-introspection message).
+introspection message). Two rosbags 0.11 limits apply to ``_Event`` only:
+``generate_msgdef`` fails on it (so rosbags cannot write it to a bag), and
+its RIHS01 hash differs from rosidl's because rosbags' Jazzy store declares
+``service_msgs/ServiceEventInfo.client_gid`` as ``char[16]`` where rosidl
+hashes ``uint8[16]`` (the CDR bytes are the same).
 
 Examples
 --------
@@ -51,11 +55,7 @@ _SEPARATOR = re.compile(r"^---[ \t]*\r?$", re.MULTILINE)
 
 # Event message that rosidl generates for every service (Jazzy service
 # introspection), in .msg syntax; names relative to the service's package.
-_SERVICE_EVENT = (
-    "service_msgs/ServiceEventInfo info\n"
-    "{name}_Request[<=1] request\n"
-    "{name}_Response[<=1] response\n"
-)
+_SERVICE_EVENT = "service_msgs/ServiceEventInfo info\n{name}_Request[<=1] request\n{name}_Response[<=1] response\n"
 
 
 def source_interface_dir() -> Path:

@@ -1,0 +1,248 @@
+"""``clm soil-calibrate``: CLM soil parameters from a soil profile (rigorous half-space).
+
+Computes the flexibility of a row of rigid sleeper–ballast contact areas on
+the profile's layered half-space (:mod:`clm_core.halfspace`), fits the CLM
+parameters to the impedance sums of Eq. (16) and (18) in a stated band and
+norm, and writes to ``--out``:
+
+- ``soil.yaml``: the fitted soil in the preset format (``name``, ``source``,
+  ``clm: {mf, df, kf, dc, kc}``, ``profile: layers``);
+- ``summary.json``: fitted values, residuals, band, norm, the sums at 0, 10,
+  50, 100 Hz, the single-area static stiffness vs Eq. (6), the preset's own
+  CLM values if the profile came from a preset;
+- ``sums.png``: real and imaginary parts of F / sum X_j and F / sum (-1)^j X_j,
+  rigorous vs CLM;
+- ``receptances.png``: |X_j / F| and phase of the loaded area and its first
+  two neighbours, rigorous vs the fitted CLM chain;
+- ``sweep.npz``: frequencies, centre column of the flexibility, sums.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from clm_core.errors import ParameterError, PresetError
+
+HELP = "fit CLM soil parameters to a rigorous half-space computation of a soil profile"
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``soil-calibrate`` sub-command to ``subparsers``."""
+    p = subparsers.add_parser(
+        "soil-calibrate",
+        help=HELP,
+        description=(
+            "Rigorous (Green's function + boundary element) flexibility of 2n+1 rigid contact areas "
+            "(2.5 m x 0.285 m) on a layered viscoelastic half-space, and a band/norm-explicit fit of the "
+            "CLM parameters to Eq. (16) and (18) of Kouroussis et al. (2011)."
+        ),
+    )
+    p.add_argument(
+        "--profile", required=True, help="soil preset name (mevergnies, soft, medium, stiff, haren) or YAML file"
+    )
+    p.add_argument("--out", required=True, type=Path, help="output directory (created)")
+    p.add_argument("--areas", type=int, default=41, help="number of contact areas 2n+1 (default 41)")
+    p.add_argument("--fmin", type=float, default=0.0, help="lower end of the fit band [Hz] (default 0)")
+    p.add_argument("--fmax", type=float, default=80.0, help="upper end of the fit band [Hz] (default 80)")
+    p.add_argument("--df", type=float, default=1.0, help="frequency step of the sweep [Hz] (default 1)")
+    p.add_argument(
+        "--sweep-max", type=float, default=150.0, help="highest frequency of the sweep [Hz] (default 150, >= fmax)"
+    )
+    p.add_argument("--norm", choices=("ls", "relative"), default="ls", help="fit norm (default ls)")
+    p.add_argument("--spacing", type=float, default=0.6, help="sleeper spacing d [m] (default 0.6)")
+    p.add_argument(
+        "--on-unstable",
+        choices=("raise", "clip"),
+        default="raise",
+        help="non-positive-definite chain damping: refuse (default) or clip d_c to 95%% of the bound",
+    )
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.set_defaults(func=run)
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    if args.areas < 1 or args.areas % 2 == 0:
+        raise ParameterError(f"--areas = {args.areas}: must be odd and >= 1 (2n + 1 areas)")
+    if not (args.df > 0 and math.isfinite(args.df)):
+        raise ParameterError(f"--df = {args.df}: must be > 0 [Hz]")
+    if not (0 <= args.fmin < args.fmax):
+        raise ParameterError(f"--fmin = {args.fmin}, --fmax = {args.fmax}: need 0 <= fmin < fmax [Hz]")
+    if args.sweep_max < args.fmax:
+        raise ParameterError(f"--sweep-max = {args.sweep_max}: must be >= --fmax = {args.fmax} [Hz]")
+    if args.spacing <= 0.285:
+        raise ParameterError(f"--spacing = {args.spacing}: must exceed the area width 0.285 m")
+
+
+def _preset_clm(spec: str) -> dict[str, float] | None:
+    """The ``clm`` block of the preset or file the profile came from, if any."""
+    from importlib import resources
+
+    path = Path(spec)
+    try:
+        if path.exists():
+            text = path.read_text(encoding="utf-8")
+        else:
+            res = resources.files("clm_core") / "presets" / "soils" / f"{spec}.yaml"
+            if not res.is_file():
+                return None
+            text = res.read_text(encoding="utf-8")
+        data = yaml.safe_load(text)
+    except (OSError, yaml.YAMLError):
+        return None
+    clm = data.get("clm") if isinstance(data, dict) else None
+    if not isinstance(clm, dict):
+        return None
+    try:
+        return {k: float(clm[k]) for k in ("mf", "kf", "df", "kc", "dc") if k in clm}
+    except (TypeError, ValueError):
+        return None
+
+
+def _plots(cal: Any, out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f = cal.freqs
+    fit = cal.fit
+    n_areas = cal.row.geometry.n_areas
+    clm = cal.clm_response()
+    j = np.arange(n_areas) - n_areas // 2
+    sign = np.where(j % 2 == 0, 1.0, -1.0)
+    S_clm = 1.0 / clm.sum(axis=1)
+    A_clm = 1.0 / (clm * sign).sum(axis=1)
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    for col, (name, ref, formula, chain) in enumerate(
+        (
+            ("F / sum X_j  (Eq. 16)", cal.total_sum, fit.total_sum(f), S_clm),
+            ("F / sum (-1)^j X_j  (Eq. 18)", cal.alternating_sum, fit.alternating_sum(f), A_clm),
+        )
+    ):
+        for row, part in enumerate(("real", "imag")):
+            ax = axes[row, col]
+            get = np.real if part == "real" else np.imag
+            ax.plot(f, get(ref) / 1e6, "k-", label="rigorous (BEM)")
+            ax.plot(f, get(formula) / 1e6, "r--", label="CLM formula")
+            ax.plot(f, get(chain) / 1e6, "b:", label=f"CLM chain, N = {n_areas}")
+            ax.axvspan(fit.band[0], fit.band[1], color="0.9", zorder=0)
+            ax.set_ylabel(f"{'Re' if part == 'real' else 'Im'} [MN/m]")
+            if row == 0:
+                ax.set_title(name)
+            if row == 1:
+                ax.set_xlabel("frequency [Hz]")
+            ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"{cal.profile.name}: fit band {fit.band[0]:g}-{fit.band[1]:g} Hz (shaded), norm '{fit.norm}'")
+    fig.tight_layout()
+    p1 = out / "sums.png"
+    fig.savefig(p1, dpi=110)
+    plt.close(fig)
+    fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    c = n_areas // 2
+    for k, colr in zip(range(3), ("k", "r", "b"), strict=False):
+        if c + k >= n_areas:
+            break
+        ref = cal.row.centre_column[:, c + k]
+        mod = clm[:, c + k]
+        axes[0].semilogy(f, np.abs(ref), colr + "-", label=f"area {k}: rigorous")
+        axes[0].semilogy(f, np.abs(mod), colr + "--", label=f"area {k}: CLM")
+        axes[1].plot(f, np.degrees(np.unwrap(np.angle(ref))), colr + "-")
+        axes[1].plot(f, np.degrees(np.unwrap(np.angle(mod))), colr + "--")
+    axes[0].set_ylabel("|X_j / F| [m/N]")
+    axes[1].set_ylabel("phase [deg]")
+    axes[1].set_xlabel("frequency [Hz]")
+    axes[0].legend(fontsize=8, ncol=3)
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    axes[0].set_title(f"{cal.profile.name}: receptances of the loaded area (0) and its neighbours")
+    fig.tight_layout()
+    p2 = out / "receptances.png"
+    fig.savefig(p2, dpi=110)
+    plt.close(fig)
+    return [p1.name, p2.name]
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the calibration; returns 0 on success."""
+    from clm_core.halfspace.calibrate import calibrate_profile
+    from clm_core.halfspace.profile import load_profile
+
+    _check_args(args)
+    profile = load_profile(args.profile)
+    freqs = np.arange(0.0, args.sweep_max + 0.5 * args.df, args.df)
+    if freqs[-1] > args.sweep_max + 1e-9:
+        freqs = freqs[:-1]
+    cal = calibrate_profile(
+        profile,
+        freqs=freqs,
+        fmin=args.fmin,
+        fmax=args.fmax,
+        norm=args.norm,
+        n_areas=args.areas,
+        spacing=args.spacing,
+        on_unstable=args.on_unstable,
+    )
+    out: Path = args.out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PresetError(f"--out '{out}': cannot create the directory ({exc.strerror})") from None
+    fit = cal.fit
+    g = cal.row.geometry
+    soil = {
+        "name": f"{profile.name}-fitted",
+        "source": (
+            f"clm soil-calibrate: rigorous half-space BEM, {g.n_areas} areas {g.length} m x {g.width} m at "
+            f"{g.spacing} m; fit band {fit.band[0]:g}-{fit.band[1]:g} Hz, norm '{fit.norm}'"
+            + (f"; constraints: {', '.join(fit.constrained)}" if fit.constrained else "")
+        ),
+        "clm": {"mf": fit.mf, "df": fit.df, "kf": fit.kf, "dc": fit.dc, "kc": fit.kc},
+        "profile": profile.to_dict(),
+    }
+    (out / "soil.yaml").write_text(
+        "# CLM soil parameters fitted by `clm soil-calibrate` (SI units: kg, N s/m, N/m).\n"
+        + yaml.safe_dump(soil, sort_keys=False),
+        encoding="utf-8",
+    )
+    summary = cal.summary()
+    summary["preset_clm"] = _preset_clm(args.profile)
+    summary["command"] = {
+        "profile": str(args.profile),
+        "areas": args.areas,
+        "fmin": args.fmin,
+        "fmax": args.fmax,
+        "df": args.df,
+        "sweep_max": args.sweep_max,
+        "norm": args.norm,
+        "spacing": args.spacing,
+        "on_unstable": args.on_unstable,
+    }
+    np.savez(
+        out / "sweep.npz",
+        freqs=cal.freqs,
+        centre_column=cal.row.centre_column,
+        positions=cal.row.positions,
+        total_sum=cal.total_sum,
+        alternating_sum=cal.alternating_sum,
+        single_impedance=cal.single_impedance,
+    )
+    files = ["soil.yaml", "summary.json", "sweep.npz"]
+    if not args.no_plots:
+        files += _plots(cal, out)
+    summary["files"] = files
+    (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    print(
+        f"{profile.name}: mf = {fit.mf:.0f} kg, kf = {fit.kf / 1e6:.1f} MN/m, df = {fit.df / 1e3:.0f} kN s/m, "
+        f"kc = {fit.kc / 1e6:.1f} MN/m, dc = {fit.dc / 1e3:.0f} kN s/m "
+        f"(band {fit.band[0]:g}-{fit.band[1]:g} Hz, norm {fit.norm}; residuals {fit.residual_total:.3f} / "
+        f"{fit.residual_alternating:.3f}) -> {out}"
+    )
+    return 0

@@ -1,0 +1,161 @@
+"""CLM fit to impedance sums (Eq. 16, 18): exact recovery, norms, constraints."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from clm_core.errors import ParameterError, StabilityError
+from clm_core.fitting.clm_sums import (
+    chain_matrix_min_eigenvalue,
+    check_chain_positive_definite,
+    clm_chain_response,
+    fit_clm_sums,
+    fit_lysmer,
+)
+
+TABLE1 = {"mf": 380.0, "kf": 72e6, "df": 680e3, "kc": 160e6, "dc": -155e3}
+
+
+def chain_sums(freqs: np.ndarray, p: dict[str, float], n_areas: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Independent tridiagonal solve of Eq. (9)-(13) for a free chain (force on the centre)."""
+    N = n_areas
+    S = np.zeros(freqs.size, complex)
+    A = np.zeros(freqs.size, complex)
+    X = np.zeros((freqs.size, N), complex)
+    j = np.arange(N) - N // 2
+    for i, f in enumerate(freqs):
+        w = 2 * math.pi * f
+        zc = p["kc"] + 1j * w * p["dc"]
+        M = np.zeros((N, N), complex)
+        for a in range(N):
+            nb = (a > 0) + (a < N - 1)
+            M[a, a] = p["kf"] - w**2 * p["mf"] + 1j * w * p["df"] + nb * zc
+            if a > 0:
+                M[a, a - 1] = -zc
+            if a < N - 1:
+                M[a, a + 1] = -zc
+        F = np.zeros(N, complex)
+        F[N // 2] = 1.0
+        x = np.linalg.solve(M, F)
+        X[i] = x
+        S[i] = 1.0 / x.sum()
+        A[i] = 1.0 / (x * (-1.0) ** j).sum()
+    return S, A, X
+
+
+@pytest.mark.parametrize("norm", ["ls", "relative"])
+def test_recovers_clm_parameters_from_chain_sums(norm: str) -> None:
+    f = np.arange(0.0, 101.0, 1.0)
+    S, A, _ = chain_sums(f, TABLE1, 81)
+    fit = fit_clm_sums(f, S, A, fmin=0.0, fmax=100.0, norm=norm)  # type: ignore[arg-type]
+    # Eq. (16) is exact for any free chain
+    for key in ("mf", "kf", "df"):
+        assert getattr(fit, key) == pytest.approx(TABLE1[key], rel=1e-9)
+    # Eq. (18) is exact for the infinite chain; 81 areas give it to ~1e-12
+    for key in ("kc", "dc"):
+        assert getattr(fit, key) == pytest.approx(TABLE1[key], rel=1e-8)
+    assert fit.residual_total < 1e-12 and fit.residual_alternating < 1e-9
+    assert fit.band == (0.0, 100.0) and fit.norm == norm and fit.n_points == 101
+    assert fit.constrained == ()
+    assert fit.damping_min_eigenvalue == pytest.approx(680e3 - 4 * 155e3)
+
+
+def test_chain_response_helper_matches_independent_solve() -> None:
+    f = np.array([0.0, 7.0, 55.0])
+    _, _, X = chain_sums(f, TABLE1, 11)
+    np.testing.assert_allclose(clm_chain_response(f, n_areas=11, **TABLE1), X, rtol=1e-12)
+
+
+def test_band_selects_frequencies() -> None:
+    f = np.arange(0.0, 151.0, 1.0)
+    S, A, _ = chain_sums(f, TABLE1, 41)
+    S = S.copy()
+    S[f > 100] *= 3.0  # garbage outside the band must not matter
+    fit = fit_clm_sums(f, S, A, fmin=10.0, fmax=100.0)
+    assert fit.kf == pytest.approx(72e6, rel=1e-9)
+    assert fit.n_points == 91
+
+
+def test_negative_mass_is_constrained_or_refused() -> None:
+    f = np.arange(0.0, 81.0, 2.0)
+    p = dict(TABLE1, mf=-200.0)
+    w = 2 * np.pi * f
+    S = p["kf"] - w**2 * p["mf"] + 1j * w * p["df"]
+    A = p["kf"] + 4 * p["kc"] - w**2 * p["mf"] + 1j * w * (p["df"] + 4 * p["dc"])
+    fit = fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0)
+    assert fit.mf == 0.0 and "mf=0" in fit.constrained
+    assert fit.kf == pytest.approx(np.mean(S.real))
+    with pytest.raises(StabilityError, match="mf = -200"):
+        fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0, mass="free")
+
+
+def test_unstable_coupling_damping_raises_or_clips() -> None:
+    f = np.arange(0.0, 81.0, 2.0)
+    p = dict(TABLE1, dc=-200e3)  # df + 4 dc = -120 kN s/m < 0
+    w = 2 * np.pi * f
+    S = p["kf"] - w**2 * p["mf"] + 1j * w * p["df"]
+    A = p["kf"] + 4 * p["kc"] - w**2 * p["mf"] + 1j * w * (p["df"] + 4 * p["dc"])
+    with pytest.raises(StabilityError, match=r"dc = -200000.*not positive definite"):
+        fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0)
+    fit = fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0, on_unstable="clip")
+    assert "dc clipped" in fit.constrained
+    assert fit.dc == pytest.approx(-0.95 * 680e3 / 4)
+    assert fit.df + 4 * fit.dc > 0
+
+
+@pytest.mark.parametrize("N", [1, 2, 3, 7, 41])
+@pytest.mark.parametrize("dc", [-160e3, -100e3, 50e3])
+def test_damping_matrix_eigenvalue_bound(N: int, dc: float) -> None:
+    """Chain damping matrix: diagonal df + 2 dc (ends df + dc), off-diagonal -dc."""
+    df = 680e3
+    C = np.diag(np.full(N, df + 2 * dc))
+    if N > 1:
+        C[0, 0] = C[-1, -1] = df + dc
+    else:
+        C[0, 0] = df
+    for a in range(N - 1):
+        C[a, a + 1] = C[a + 1, a] = -dc
+    lam = np.linalg.eigvalsh(C).min()
+    assert chain_matrix_min_eigenvalue(df, dc, N) == pytest.approx(lam, rel=1e-9, abs=1e-6)
+    # the length-independent bound df + 4 min(dc, 0) is never above the finite-chain value
+    assert chain_matrix_min_eigenvalue(df, dc) <= lam + 1e-6
+
+
+def test_check_positive_definite_messages() -> None:
+    check_chain_positive_definite(**{"df": 680e3, "dc": -155e3, "kf": 72e6, "kc": 160e6, "mf": 380.0})
+    with pytest.raises(StabilityError, match="kc = -2e\\+07"):
+        check_chain_positive_definite(df=680e3, dc=-155e3, kf=72e6, kc=-20e6, mf=380.0)
+
+
+def test_fit_lysmer_exact() -> None:
+    f = np.linspace(0.0, 80.0, 41)
+    w = 2 * np.pi * f
+    K = 176e6 - w**2 * 250.0 + 1j * w * 480e3
+    for norm in ("ls", "relative"):
+        fit = fit_lysmer(f, K, fmin=0.0, fmax=80.0, norm=norm)  # type: ignore[arg-type]
+        assert (fit.mf, fit.kf, fit.df) == pytest.approx((250.0, 176e6, 480e3), rel=1e-9)
+        np.testing.assert_allclose(fit.impedance(f), K, rtol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"fmin": 50.0, "fmax": 10.0}, "band"),
+        ({"fmin": 200.0, "fmax": 300.0}, "holds 0 frequencies"),
+        ({"fmin": 0.0, "fmax": 80.0, "norm": "l1"}, "norm"),
+        ({"fmin": 0.0, "fmax": 80.0, "on_unstable": "ignore"}, "on_unstable"),
+    ],
+)
+def test_bad_arguments(kwargs: dict[str, object], match: str) -> None:
+    f = np.arange(0.0, 81.0, 10.0)
+    S, A, _ = chain_sums(f, TABLE1, 5)
+    with pytest.raises(ParameterError, match=match):
+        fit_clm_sums(f, S, A, **kwargs)  # type: ignore[arg-type]
+
+
+def test_shape_mismatch() -> None:
+    with pytest.raises(ParameterError, match="shape"):
+        fit_clm_sums(np.arange(5.0), np.ones(4), np.ones(5), fmin=0.0, fmax=4.0)

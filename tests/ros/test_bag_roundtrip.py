@@ -1,0 +1,121 @@
+"""Record -> replay over DDS -> offline replay: identical responses, counts in = out.
+
+A wheel-load bag (written with rosbags) is played to a track node in its own
+process with flow control; a recorder (raw subscriptions) writes the node's
+answers to a bag; ``clm replay`` runs the recorded wheel loads offline. The
+responses of both bags are identical, for mcap and sqlite3.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
+
+from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
+
+from clm_core.cli import main as clm  # noqa: E402
+from clm_ros.conversions import rosbags_wheel_loads  # noqa: E402
+from clm_ros.msg_types import typestore  # noqa: E402
+from clm_ros.replay import open_reader  # noqa: E402
+
+NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
+N = 300
+
+
+def _write_wheel_bag(path, storage: str) -> None:  # type: ignore[no-untyped-def]
+    ts = typestore()
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    with Writer(path, version=8, storage_plugin=plugin) as w:
+        c = w.add_connection("/wheel_loads", "clm_msgs/msg/WheelLoads", typestore=ts)
+        for k in range(N):
+            t = 7 * 10**9 + k * 10**6
+            m = rosbags_wheel_loads(ts, t, [3, 4], [30.0 + 0.03 * k, 27.0 + 0.03 * k], [80e3 + 10 * k, 85e3])
+            w.write(c, t, ts.serialize_cdr(m, "clm_msgs/msg/WheelLoads"))
+
+
+def _responses(path, topic: str = "/sleeper_response") -> list[tuple[int, np.ndarray]]:  # type: ignore[no-untyped-def]
+    reader = open_reader(path)
+    try:
+        conns = [c for c in reader.connections if c.topic == topic]
+        out = []
+        for conn, _, raw in reader.messages(connections=conns):
+            m = reader.deserialize(raw, conn.msgtype)
+            out.append((m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, np.asarray(m.soil_force)))
+        return out
+    finally:
+        reader.close()
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_record_replay_offline_identical(ros_python, ros_domain_id, tmp_path, storage, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    import rclpy
+    from rclpy.context import Context
+
+    from clm_ros.bag_tools import BagRecorder, play_bag
+
+    src = tmp_path / "wheels"
+    _write_wheel_bag(src, storage)
+    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.5"], name="track_node")
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    try:
+        node = rclpy.create_node("recorder_player", context=ctx)
+        rec = BagRecorder(node, tmp_path / "recorded", {
+            "/wheel_loads": "clm_msgs/msg/WheelLoads",
+            "/sleeper_response": "clm_msgs/msg/SleeperResponse",
+            "/wheel_rail_response": "clm_msgs/msg/WheelRailResponse",
+        }, storage=storage)
+        try:
+            sent = play_bag(node, src, ["/wheel_loads"], rate=0, ack_topic="/sleeper_response", max_in_flight=25,
+                             idle_timeout=60.0, min_subscribers=2)  # the node and the recorder
+        except Exception:
+            proc.terminate()
+            print("node stderr:", proc.communicate(timeout=20)[1])
+            raise
+        assert sent == {"/wheel_loads": N}
+        from rclpy.executors import SingleThreadedExecutor
+
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        import time
+
+        t0 = time.monotonic()
+        while min(rec.counts.values()) < N and time.monotonic() - t0 < 30:
+            ex.spin_once(timeout_sec=0.05)
+        counts = rec.close()
+        assert counts == {"/wheel_loads": N, "/sleeper_response": N, "/wheel_rail_response": N}
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    proc.terminate()
+    ros_python.wait(proc, 20)
+    # offline replay of the recorded wheel loads
+    assert clm(["replay", str(tmp_path / "recorded"), "--topic", "/wheel_loads", "--storage", storage,
+                "--out", str(tmp_path / "offline")]) == 0
+    live = _responses(tmp_path / "recorded")
+    offline = _responses(tmp_path / "offline")
+    assert len(live) == len(offline) == N
+    for (t1, f1), (t2, f2) in zip(live, offline):
+        assert t1 == t2
+        np.testing.assert_array_equal(f1, f2)
+
+
+def test_replay_errors(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import subprocess
+    import sys
+
+    # missing bag, truncated bag, a bag without wheel loads
+    _write_wheel_bag(tmp_path / "ok", "mcap")
+    mcap = next((tmp_path / "ok").glob("*.mcap"))
+    trunc = tmp_path / "trunc"
+    trunc.mkdir()
+    (trunc / "trunc.mcap").write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 3])
+    cases = [(tmp_path / "nope", "not found"), (trunc / "trunc.mcap", "cannot be read")]
+    for path, msg in cases:
+        p = subprocess.run([sys.executable, "-m", "clm_core.cli", "replay", str(path), "--out", str(tmp_path / "o")],
+                           capture_output=True, text=True)
+        assert p.returncode == 2 and msg in p.stderr, p.stderr
+    assert not (tmp_path / "o").exists()
