@@ -39,4 +39,12 @@ fi
 
 if [ -f "$root/scripts/setup_ros.sh" ] && [ "${CLM_SKIP_ROS:-0}" != "1" ]; then
     bash "$root/scripts/setup_ros.sh" "$venv"
+    # the ROS layer (nodes, bag tools, clm replay/record/play) as an editable package
+    if ! "$venv/bin/python" -c 'import clm_ros.track_node' 2>/dev/null \
+        || [ ! -f "$venv/.clm_ros.stamp" ] || [ "$(cat "$venv/.clm_ros.stamp")" != "$(sha256sum "$root/ros2_ws/src/clm_ros/setup.py" | cut -d' ' -f1)" ]; then
+        echo "bootstrap: installing clm_ros"
+        "$venv/bin/python" -m pip install -q -e "$root/ros2_ws/src/clm_ros" 2>&1 | grep -v -E '^WARNING: Location .* is ignored' || true
+        "$venv/bin/python" -c 'import clm_ros.track_node' || { echo "bootstrap: clm_ros install failed" >&2; exit 1; }
+        sha256sum "$root/ros2_ws/src/clm_ros/setup.py" | cut -d' ' -f1 > "$venv/.clm_ros.stamp"
+    fi
 fi

@@ -6,4 +6,5 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 bash "$root/scripts/bootstrap.sh"
 cd "$root"
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export CLM_REQUIRE_ROS=${CLM_REQUIRE_ROS:-1}
 exec "$root/.venv/bin/python" -m pytest "$@"

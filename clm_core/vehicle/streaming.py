@@ -1,0 +1,178 @@
+"""A vehicle that streams its wheel loads to an external track model.
+
+This is the physics of the vehicle simulator node (and the reference for any
+external simulator talking to the track node): the multibody vehicle and the
+Hertz contact of :mod:`clm_core.vehicle` advance step by step, while the
+track is a separate model (the track node) that answers each wheel-load
+message with the rail deflection under the wheels, a few messages late.
+
+Co-simulation of a stiff Hertz contact with a delayed partner needs a local
+predictor: each wheel runs on a single-DOF equivalent of the track (mass
+M_t, stiffness K_t, damping C_t fitted to the model's point dynamic
+stiffness, :func:`clm_core.vehicle.impact.equivalent_track`), integrated
+with the same Newmark step, so the contact solution stays implicit and
+stable. In closed loop the track's reported deflection corrects the
+predictor: the latest difference between the track's rail deflection and
+the predictor's at the same stamp is added to the predicted deflection,
+
+    w(t) = w_sdof(t) + [w_track(t_k) - w_sdof(t_k)],
+
+so slow differences (static deflection shape, coupling between wheels, a
+non-uniform track the vehicle does not know) come from the track model and
+only fast dynamics rely on the predictor. In open loop the vehicle runs on
+the predictor alone.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from clm_core.errors import InputError, ParameterError
+from numba import njit
+
+from clm_core.vehicle.contact import fused_vehicle_contact_step, static_compression
+from clm_core.vehicle.coupled import CoupledSimulation
+from clm_core.vehicle.multibody import VehicleNewmark
+
+Array = NDArray[np.float64]
+
+
+@njit(cache=True)
+def _sdof_vehicle_steps(
+    Kinv: Array, KinvB: Array, H: Array, M: Array, C: Array, grav: Array, wdof: NDArray[np.int64],
+    u: Array, v: Array, a: Array, dt: float, R: Array, ch: Array, delta: Array,
+    Mt: float, Ct: float, S: float, G: Array, w: Array, vw: Array, aw: Array, offset: Array,
+    tol: float, maxit: int,
+) -> tuple[Array, Array, int, float, int]:  # pragma: no cover - compiled
+    """Several steps of vehicle + Hertz contact + per-wheel SDOF track predictor (state in place)."""
+    n_w = w.shape[0]
+    P = np.zeros(n_w)
+    worst = 0.0
+    lost = 0
+    maxit_used = 0
+    for i in range(R.shape[0]):
+        rhs = Mt * (4.0 / dt**2 * w + 4.0 / dt * vw + aw) + Ct * (2.0 / dt * w + vw)
+        w_free = rhs / S + offset
+        delta, P, it, rn = fused_vehicle_contact_step(
+            Kinv, KinvB, H, M, C, grav, wdof, u, v, a, dt, w_free, G, R[i], ch, delta, tol, maxit)
+        worst = max(worst, rn)
+        maxit_used = max(maxit_used, it)
+        w_new = (rhs + P) / S
+        dw = w_new - w
+        vw_new = 2.0 / dt * dw - vw
+        aw[:] = 4.0 / dt**2 * dw - 4.0 / dt * vw - aw
+        vw[:] = vw_new
+        w[:] = w_new
+        for j in range(n_w):
+            if P[j] <= 0.0:
+                lost += 1
+    return delta, P, maxit_used, worst, lost
+
+
+class StreamingVehicle:
+    """Vehicle + Hertz contact stepped against an external track.
+
+    Parameters
+    ----------
+    sim : CoupledSimulation
+        Describes the run (train, track parameters, speed, dt, irregularity,
+        start position, Hertz constants); built e.g. by
+        :func:`clm_core.vehicle.cli_support.build_run`. Its own track engine
+        is not used.
+    """
+
+    def __init__(self, sim: CoupledSimulation) -> None:
+        from clm_core.vehicle.impact import equivalent_track
+
+        self.sim = sim
+        tr = sim.train
+        self.train = tr
+        self.dt = dt = sim.dt
+        self.k = 0
+        x0 = sim.wheel_positions(np.zeros(1))[0]
+        self.x0 = x0
+        self.eq = equivalent_track(sim.params)
+        Kt, Mt, Ct = self.eq.Kt, self.eq.Mt, self.eq.Ct
+        if not (Kt > 0 and Mt >= 0 and Ct >= 0):
+            raise ParameterError(f"equivalent track K_t = {Kt:g}, M_t = {Mt:g}, C_t = {Ct:g}: not a valid SDOF track")
+        self._S = Kt + 2.0 * Ct / dt + 4.0 * Mt / dt**2
+        n = tr.n_wheels
+        #: step compliance of the predictor [m/N] (diagonal: wheels >= 2 m apart barely interact)
+        self.G = np.eye(n) / self._S
+        self.P = tr.static_wheel_loads()
+        self.w = self.P / Kt  # predictor state: static deflection, at rest
+        self.v = np.zeros(n)
+        self.a = np.zeros(n)
+        self.offset = np.zeros(n)
+        self.delta = static_compression(self.P, sim.hertz)
+        r0 = sim.irregularity.wheel_irregularity(x0[None, :], x0, tr.wheel_radius)[0]
+        self.veh = VehicleNewmark(tr, dt)
+        self.veh.set_state(tr.static_state(self.w + r0 + self.delta), None, self.P)
+        self._history: dict[int, Array] = {0: self.w.copy()}
+        self.contact_lost_steps = 0
+        self.warm_up()
+
+    def warm_up(self) -> None:
+        """Compile (or load) the stepping kernel on copies of the state: no effect on the run."""
+        tr, veh = self.train, self.veh
+        R = np.zeros((1, tr.n_wheels))
+        _sdof_vehicle_steps(
+            veh._Kinv, veh._KinvB, veh.H, tr.M, tr.C, tr.gravity_force, tr.wheel_dof, veh.u.copy(), veh.v.copy(),
+            veh.a.copy(), self.dt, R, self.sim.hertz, self.delta.copy(), self.eq.Mt, self.eq.Ct, self._S, self.G,
+            self.w.copy(), self.v.copy(), self.a.copy(), self.offset.copy(), 1e-14, 50)
+
+    @property
+    def t(self) -> float:
+        """Current time [s] since the start."""
+        return self.k * self.dt
+
+    @property
+    def rail(self) -> Array:
+        """Predicted rail deflection under the wheels now [m]."""
+        return np.asarray(self.w + self.offset)
+
+    def positions(self, t: float | None = None) -> Array:
+        """Wheel positions [m] at time ``t`` (default now)."""
+        tt = self.t if t is None else t
+        return np.asarray(self.sim.wheel_positions(np.array([tt]))[0])
+
+    def set_track_response(self, step: int, rail_deflection: ArrayLike) -> None:
+        """The track's rail deflection under the wheels [m] at step ``step`` (closes the loop)."""
+        w = np.asarray(rail_deflection, dtype=float)
+        n = self.train.n_wheels
+        if w.shape != (n,):
+            raise InputError(f"track response: {w.size} deflections; expected {n}")
+        if not np.all(np.isfinite(w)):
+            raise InputError("track response: non-finite rail deflection")
+        ref = self._history.pop(int(step), None)
+        if ref is None:
+            raise InputError(f"track response for step {step}: no prediction kept for it")
+        for old in [k for k in self._history if k < step]:
+            del self._history[old]
+        self.offset = np.ascontiguousarray(w - ref)
+
+    def advance(self, n_steps: int) -> Array:
+        """Advance ``n_steps`` steps of ``dt``; return the contact forces P [N] at the end."""
+        if n_steps < 1:
+            raise ParameterError(f"n_steps = {n_steps}: must be >= 1")
+        tr, dt = self.train, self.dt
+        Mt, Ct = self.eq.Mt, self.eq.Ct
+        t = (self.k + 1 + np.arange(n_steps)) * dt
+        X = self.sim.wheel_positions(t)
+        R = self.sim.irregularity.wheel_irregularity(X, self.x0, tr.wheel_radius)
+        veh = self.veh
+        self.delta, self.P, _, worst, lost = _sdof_vehicle_steps(
+            veh._Kinv, veh._KinvB, veh.H, tr.M, tr.C, tr.gravity_force, tr.wheel_dof, veh.u, veh.v, veh.a, dt,
+            np.ascontiguousarray(R), self.sim.hertz, np.ascontiguousarray(self.delta), Mt, Ct, self._S, self.G,
+            self.w, self.v, self.a, self.offset, 1e-14, 50)
+        if not (worst <= 1e-14 and np.all(np.isfinite(self.P))):
+            raise InputError(f"contact Newton iteration did not converge (residual {worst:.3g} m)")
+        self.contact_lost_steps += int(lost)
+        self.k += n_steps
+        self._history[self.k] = self.w.copy()
+        if len(self._history) > 100_000:  # no answers coming: keep memory bounded
+            self._history.pop(next(iter(self._history)))
+        return np.asarray(self.P, dtype=float)

@@ -1,0 +1,191 @@
+"""Vehicle simulator node: the clm_core vehicle publishing wheel loads in real time.
+
+Publishes ``clm_msgs/WheelLoads`` on ``wheel_loads`` at ``rate`` Hz (1 kHz by
+default), each stamped with its simulation time (ROS time of the start plus
+k / rate, or sim time from 0 with ``publish_clock``, which also publishes
+``/clock``). With ``closed_loop`` it subscribes to ``wheel_rail_response``
+and uses the track's rail deflection under the wheels
+(:class:`clm_core.vehicle.streaming.StreamingVehicle`); otherwise it runs on
+the quasi-static track compliance.
+
+It is also the reference client for external simulators: wait for the
+track node (``wait_for_subscribers``), publish one ``WheelLoads`` per
+sample with increasing stamps, read ``WheelRailResponse``.
+
+When ``duration`` has been simulated it waits (``ack_timeout``) for the
+track's answers to every message, logs the counts and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from clm_core.errors import ClmError
+from clm_core.params import SOIL_MODELS, load_model, load_params_file
+from clm_core.vehicle.cli_support import build_run
+from clm_core.vehicle.streaming import StreamingVehicle
+from clm_msgs.msg import WheelLoads, WheelRailResponse
+from clm_ros.conversions import rclpy_wheel_loads, stamp_ns
+
+NODE_NAME = "clm_vehicle_node"
+NS = 1_000_000_000
+
+
+def _desc(text: str, frange: tuple[float, float] | None = None, irange: tuple[int, int] | None = None) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=text, read_only=True)
+    if frange:
+        d.floating_point_range = [FloatingPointRange(from_value=frange[0], to_value=frange[1], step=0.0)]
+    if irange:
+        d.integer_range = [IntegerRange(from_value=irange[0], to_value=irange[1], step=1)]
+    return d
+
+
+class VehicleNode(Node):
+    """Publishes the wheel loads of a clm_core vehicle at a fixed rate."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        dp = self.declare_parameter
+        dp("vehicle", "thalys", _desc("vehicle preset or YAML file"))
+        dp("cars", 1, _desc("number of cars of the preset's composition [-]", irange=(1, 20)))
+        dp("speed", 83.33, _desc("train speed [m/s]", frange=(0.0, 150.0)))
+        dp("duration", 3.0, _desc("simulated time to run [s]", frange=(1e-3, 3600.0)))
+        dp("rate", 1000.0, _desc("wheel-load publication rate [Hz]", frange=(1.0, 10000.0)))
+        dp("dt", 1.0e-4, _desc("vehicle integration time step [s]; rate * dt must divide 1", frange=(1e-6, 1e-2)))
+        dp("start", 30.0, _desc("position of the first wheel at t = 0 [m]", frange=(-1e7, 1e7)))
+        dp("irregularity", "fra5", _desc("none, fra1..fra6, german-low, german-high or a CSV profile file"))
+        dp("seed", 1, _desc("random seed of the irregularity [-]", irange=(0, 2**31 - 1)))
+        dp("wavelength_band", "1,50", _desc("irregularity wavelength band [m], 'min,max'"))
+        dp("track", "mevergnies", _desc("track preset (for the rail compliance under the wheels)"))
+        dp("soil", "mevergnies", _desc("soil preset"))
+        dp("model", "clm", _desc(f"soil model: {', '.join(SOIL_MODELS)}"))
+        dp("params_file", "", _desc("full parameter file (replaces track/soil/model)"))
+        dp("closed_loop", True, _desc("use the track node's rail deflection under the wheels"))
+        dp("publish_clock", False, _desc("publish /clock and stamp with simulation time from 0"))
+        dp("wait_for_subscribers", 1, _desc("subscribers of wheel_loads to wait for before starting [-]",
+                                            irange=(0, 100)))
+        dp("discovery_timeout", 30.0, _desc("how long to wait for them [s]", frange=(0.0, 3600.0)))
+        dp("ack_timeout", 10.0, _desc("after the run, wait this long for the track's answers [s]",
+                                      frange=(0.0, 3600.0)))
+        dp("frame_id", "track", _desc("frame id of the headers"))
+        dp("max_feedback_delay", 0.02, _desc("closed loop: ignore track answers older than this [s] (counted)",
+                                              frange=(0.0, 10.0)))
+        g = lambda n: self.get_parameter(n).value  # noqa: E731
+        params = load_params_file(g("params_file")) if g("params_file") else load_model(g("track"), g("soil"), g("model"))
+        ns = argparse.Namespace(vehicle=g("vehicle"), cars=int(g("cars")), speed=float(g("speed")),
+                                duration=float(g("duration")), dt=float(g("dt")), start=float(g("start")),
+                                irregularity=g("irregularity"), seed=int(g("seed")), wavelength_band=g("wavelength_band"),
+                                defect=[], train=None)
+        sim, duration, self.settings = build_run(ns, params)
+        rate = float(g("rate"))
+        sub = 1.0 / (rate * sim.dt)
+        if abs(sub - round(sub)) > 1e-9 or round(sub) < 1:
+            raise ClmError(f"rate = {rate:g} Hz and dt = {sim.dt:g} s: 1/(rate dt) = {sub:g} must be a whole number")
+        self.substeps = int(round(sub))
+        self.n_messages = int(round(duration * rate))
+        self.period_ns = int(round(NS / rate))
+        self.vehicle = StreamingVehicle(sim)
+        self.ids = np.arange(self.vehicle.train.n_wheels)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub = self.create_publisher(WheelLoads, "wheel_loads", qos)
+        self.clock_pub = self.create_publisher(Clock, "/clock", 10) if g("publish_clock") else None
+        self.sent: dict[int, int] = {}  # stamp -> vehicle step
+        self.answered = 0
+        self.closed_loop = bool(g("closed_loop"))
+        self.max_delay_steps = int(float(g("max_feedback_delay")) / sim.dt)
+        self.stale = 0
+        self.used = 0
+        self.create_subscription(WheelRailResponse, "wheel_rail_response", self._on_response, qos)
+
+    def _on_response(self, msg: WheelRailResponse) -> None:
+        self.answered += 1
+        step = self.sent.pop(stamp_ns(msg.header), None)
+        if step is None or not self.closed_loop:
+            return
+        ids = np.asarray(msg.wheel_id, dtype=np.int64)
+        w = np.full(self.ids.size, np.nan)
+        if ids.size and ids.max() < w.size:
+            w[ids] = np.asarray(msg.rail_deflection)
+        if self.vehicle.k - step > self.max_delay_steps:
+            self.stale += 1
+            return
+        if np.all(np.isfinite(w)):
+            self.used += 1
+            try:
+                self.vehicle.set_track_response(step, w)
+            except ClmError as exc:
+                self.get_logger().warning(f"track response ignored: {exc}", once=True)
+
+    def run(self, executor: SingleThreadedExecutor) -> int:
+        """Wait for subscribers, publish in real time, wait for the answers; return the exit code."""
+        g = lambda n: self.get_parameter(n).value  # noqa: E731
+        t0 = time.monotonic()
+        while self.pub.get_subscription_count() < int(g("wait_for_subscribers")):
+            if time.monotonic() - t0 > float(g("discovery_timeout")):
+                self.get_logger().error(f"no {g('wait_for_subscribers')} subscriber(s) on wheel_loads after {g('discovery_timeout')} s")
+                return 3
+            executor.spin_once(timeout_sec=0.02)
+        base_ns = 0 if self.clock_pub else self.get_clock().now().nanoseconds
+        start = time.monotonic()
+        frame = str(g("frame_id"))
+        late = 0
+        for k in range(self.n_messages + 1):
+            P = self.vehicle.P.copy() if k == 0 else self.vehicle.advance(self.substeps)
+            t_ns = base_ns + k * self.period_ns
+            due = start + k * self.period_ns / NS
+            while (wait := due - time.monotonic()) > 0:
+                executor.spin_once(timeout_sec=min(wait, 0.0005))
+            if time.monotonic() - due > 2 * self.period_ns / NS:
+                late += 1
+            if self.clock_pub is not None:
+                self.clock_pub.publish(Clock(clock=rclpy.time.Time(nanoseconds=t_ns).to_msg()))
+            x = self.vehicle.positions()
+            self.sent[t_ns] = self.vehicle.k
+            self.pub.publish(rclpy_wheel_loads(t_ns, self.ids, x, P, np.full(self.ids.size, self.vehicle.sim.speed), frame))
+            executor.spin_once(timeout_sec=0)
+        t1 = time.monotonic()
+        while self.answered < self.n_messages + 1 and time.monotonic() - t1 < float(g("ack_timeout")):
+            executor.spin_once(timeout_sec=0.01)
+        self.get_logger().info(
+            f"published {self.n_messages + 1} wheel-load messages at {g('rate')} Hz ({late} late by > 2 periods), "
+            f"{self.answered} answered ({self.used} used as feedback, {self.stale} too late); "
+            f"contact lost in {self.vehicle.contact_lost_steps} wheel-steps"
+        )
+        return 0
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point ``clm-vehicle-node``."""
+    rclpy.init(args=args)
+    code = 0
+    node = None
+    try:
+        node = VehicleNode()
+        ex = SingleThreadedExecutor()
+        ex.add_node(node)
+        code = node.run(ex)
+    except ClmError as exc:
+        print(f"clm_vehicle_node: error: {exc}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
