@@ -1,0 +1,364 @@
+"""Bounded nonlinear least squares with confidence intervals and identifiability checks.
+
+The fitted physical parameters p are a linear image p = A z of internal
+variables z that carry simple bounds (e.g. z = d_f + 4 d_c >= 0 for the
+stability of the CLM chain, Kouroussis et al. 2011, Sec. 4.2), so every
+iterate is an admissible set. :func:`scipy.optimize.least_squares` (trust
+region reflective) minimises 1/2 sum r_i^2 over the scaled z / |z_0|.
+
+Uncertainty (linearised at the optimum, Gauss–Newton):
+
+    cov(p) = c (J^T J)^-1 J^T Sigma J (J^T J)^-1
+
+with J = dr/dp at the optimum and Sigma the covariance of the residuals
+that the measurement noise causes (the "sandwich" form: windowing
+correlates neighbouring frequency lines, so Sigma is not diagonal), given by
+the caller from its noise model; c = max(1, sum r_i^2 / E[sum r_i^2]) widens
+the interval when the residuals exceed the noise (model error, or noise
+underestimated). Without a noise model, the classical
+
+    cov(p) = kappa s^2 (J^T J)^-1,   s^2 = sum r_i^2 / (m - n_p)
+
+is used, kappa >= 1 accounting for the correlation of neighbouring lines
+(:attr:`clm_core.calibration.spectra.TransferData.corr_factor`). The 95 %
+interval is p +- t_{0.975, m - n_p} sqrt(cov_ii). It covers noise (and, by c,
+a misfit larger than the noise), not a biased model; a parameter on a bound
+has no two-sided interval.
+
+Identifiability: a parameter whose 95 % half-width exceeds ``ident_rel`` of
+its value, or that dominates a singular direction of the column-scaled
+Jacobian whose singular value is below ``1 / cond_max`` of the largest, is
+reported as not identifiable from the data.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+from scipy.stats import t as student_t
+
+from clm_core.calibration.errors import CalibrationError
+from clm_core.errors import ParameterError
+
+Array = NDArray[np.float64]
+Residual = Callable[[Array], tuple[Array, Array | None]]
+#: J -> (J^T Sigma J, trace Sigma): the residual covariance of the noise, applied to a Jacobian.
+Sandwich = Callable[[Array], tuple[Array, float]]
+
+
+@dataclass(frozen=True)
+class ParameterEstimate:
+    """One fitted (or fixed) parameter.
+
+    Attributes
+    ----------
+    name : str
+        Parameter name (``kf``, ``kb``, ...).
+    unit : str
+        SI unit.
+    value : float
+        Fitted value.
+    initial : float
+        Starting value (first estimate).
+    std : float
+        Standard error (NaN if fixed or not computable).
+    ci_low, ci_high : float
+        95 % confidence interval.
+    fitted : bool
+        False for a parameter held fixed.
+    at_bound : bool
+        The optimum lies on a constraint (positivity, stability).
+    identifiable : bool
+        False when the data do not determine the parameter (see module doc).
+    """
+
+    name: str
+    unit: str
+    value: float
+    initial: float
+    std: float = math.nan
+    ci_low: float = math.nan
+    ci_high: float = math.nan
+    fitted: bool = True
+    at_bound: bool = False
+    identifiable: bool = True
+
+    @property
+    def rel_halfwidth(self) -> float:
+        """Half-width of the 95 % interval over |value| [-]."""
+        if self.value == 0 or not math.isfinite(self.ci_high):
+            return math.nan
+        return 0.5 * (self.ci_high - self.ci_low) / abs(self.value)
+
+    def contains(self, x: float) -> bool:
+        """Whether ``x`` lies in the 95 % interval."""
+        return bool(self.ci_low <= x <= self.ci_high)
+
+
+@dataclass(frozen=True)
+class FitStats:
+    """Quality of a least-squares fit.
+
+    Attributes
+    ----------
+    n_residuals : int
+        Number of real residuals m.
+    n_params : int
+        Number of fitted parameters.
+    cost : float
+        1/2 sum r_i^2 at the optimum.
+    rms : float
+        sqrt(sum r_i^2 / m): in the ``weighted`` norm about 1 when the model
+        explains the data down to the noise.
+    residual_variance : float
+        s^2 = sum r_i^2 / (m - n_p).
+    corr_factor : float
+        kappa, the covariance inflation for correlated residuals (classical form).
+    noise_ratio : float
+        sum r_i^2 / E[sum r_i^2] under the noise model (about 1 when the
+        model explains the data down to the noise; NaN without a noise model).
+    covariance : str
+        ``sandwich`` (noise model) or ``classical``.
+    condition : float
+        Condition number of the column-scaled Jacobian (columns x |p|).
+    singular_values : tuple of float
+        Its singular values, largest first.
+    nfev : int
+        Residual evaluations.
+    status : str
+        Optimiser message.
+    """
+
+    n_residuals: int
+    n_params: int
+    cost: float
+    rms: float
+    residual_variance: float
+    corr_factor: float
+    noise_ratio: float
+    covariance: str
+    condition: float
+    singular_values: tuple[float, ...]
+    nfev: int
+    status: str
+
+
+def fit_bounded(
+    residual: Residual,
+    names: Sequence[str],
+    units: Sequence[str],
+    p0: Array,
+    A: Array,
+    z_lower: Array,
+    z_upper: Array,
+    *,
+    corr_factor: float = 1.0,
+    max_nfev: int = 200,
+    ident_rel: float = 0.25,
+    cond_max: float = 1e6,
+    fd_step: float = 1e-6,
+    jacobian: bool = True,
+    sandwich: Sandwich | None = None,
+) -> tuple[Array, tuple[ParameterEstimate, ...], FitStats, list[str]]:
+    """Minimise sum r(p)^2 over p = A z with l <= z <= u; intervals and identifiability.
+
+    Parameters
+    ----------
+    residual : callable p -> (r, J)
+        Residual vector (m,) and its Jacobian dr/dp (m, n_p), or None for
+        a finite-difference Jacobian.
+    names, units : sequence of str
+        Parameter names and SI units (n_p).
+    p0 : (n_p,) array
+        Starting point (must satisfy the bounds after mapping to z).
+    A : (n_p, n_p) array
+        Invertible map z -> p.
+    z_lower, z_upper : (n_p,) arrays
+        Bounds of z.
+    corr_factor : float
+        kappa (>= 1) for correlated residuals.
+    max_nfev : int
+        Evaluation budget of the optimiser.
+    ident_rel : float
+        Largest 95 % half-width, relative to the value, of an identifiable parameter.
+    cond_max : float
+        Largest condition number of the scaled Jacobian before the weakest
+        direction is reported.
+    fd_step : float
+        Relative step of finite differences.
+    jacobian : bool
+        Whether ``residual`` returns the Jacobian (else finite differences).
+    sandwich : callable, optional
+        J -> (J^T Sigma J, trace Sigma) from the noise model; selects the
+        sandwich covariance (module docstring).
+
+    Returns
+    -------
+    p : (n_p,) array
+        Optimum.
+    estimates : tuple of ParameterEstimate
+    stats : FitStats
+    warnings : list of str
+
+    Raises
+    ------
+    CalibrationError
+        A starting point outside the bounds or non-finite residuals there.
+    """
+    p0 = np.asarray(p0, dtype=float)
+    n = p0.size
+    Ainv = np.linalg.inv(A)
+    z0 = Ainv @ p0
+    lo, hi = np.asarray(z_lower, dtype=float), np.asarray(z_upper, dtype=float)
+    scale = np.where(np.abs(z0) > 0, np.abs(z0), np.maximum(np.abs(A).sum(axis=0), 1.0))
+    # start strictly inside: least_squares needs lb < x0 < ub
+    span = np.where(np.isfinite(hi - lo), hi - lo, np.abs(z0) + 1.0)
+    z0 = np.clip(z0, lo + 1e-6 * span, hi - 1e-6 * span)
+    z0 = np.where((z0 <= lo) | (z0 >= hi), lo + 1e-3 * np.maximum(scale, 1e-30), z0)
+    r0, _ = residual(A @ z0)
+    if not np.all(np.isfinite(r0)):
+        raise CalibrationError(f"the first estimate {dict(zip(names, (A @ z0).tolist()))} gives non-finite residuals")
+    cache: dict[str, Array | None] = {}
+
+    def fun(x: Array) -> Array:
+        r, J = residual(A @ (x * scale))
+        cache["x"] = x.copy()
+        cache["J"] = J
+        return r
+
+    def jac(x: Array) -> Array:
+        xc = cache.get("x")
+        if xc is None or not np.array_equal(xc, x) or cache.get("J") is None:
+            r, J = residual(A @ (x * scale))
+            cache["x"], cache["J"] = x.copy(), J
+        J = cache["J"]
+        assert J is not None
+        return J @ A * scale[None, :]
+
+    sol = least_squares(
+        fun,
+        z0 / scale,
+        jac=jac if jacobian else "2-point",
+        bounds=(lo / scale, hi / scale),
+        x_scale="jac",
+        max_nfev=max_nfev,
+        method="trf",
+    )
+    z = sol.x * scale
+    p = A @ z
+    r, J = residual(p)
+    if J is None:
+        J = _fd_jacobian(residual, p, r, fd_step)
+    m = r.size
+    dof = max(m - n, 1)
+    s2 = float(r @ r) / dof
+    pscale = np.where(p != 0, np.abs(p), 1.0)
+    Js = J * pscale[None, :]
+    U, sv, Vt = np.linalg.svd(Js, full_matrices=False)
+    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
+    kappa = max(1.0, float(corr_factor))
+    cov_s: Array | None = None
+    noise_ratio = math.nan
+    if sv[-1] > sv[0] * 1e-14:
+        inv = (Vt.T / sv[None, :] ** 2) @ Vt  # (Js^T Js)^-1
+        if sandwich is not None:
+            B, trace = sandwich(J)
+            Bs = B * np.outer(pscale, pscale)
+            noise_ratio = float(r @ r) / trace if trace > 0 else math.inf
+            c = max(1.0, noise_ratio * m / dof)
+            cov_s = c * inv @ Bs @ inv
+        else:
+            cov_s = kappa * s2 * inv
+    tq = float(student_t.ppf(0.975, dof))
+    at_bound_z = (np.abs(z - lo) <= 1e-6 * np.maximum(np.abs(z), scale)) | (
+        np.abs(z - hi) <= 1e-6 * np.maximum(np.abs(z), scale)
+    )
+    # a parameter is at a bound if it depends on a z at a bound
+    at_bound_p = (np.abs(A) > 0) @ at_bound_z.astype(float) > 0
+    warnings: list[str] = []
+    weak = set()
+    if cond > cond_max and cov_s is not None:
+        v = Vt[-1]
+        dom = [names[i] for i in np.argsort(-np.abs(v)) if abs(v[i]) > 0.3]
+        weak.update(dom)
+        warnings.append(
+            "the data constrain only a combination of "
+            + ", ".join(dom)
+            + f" (Jacobian condition number {cond:.3g}, rule <= {cond_max:.3g}): these parameters are not "
+            "identifiable separately; fix some of them or measure more channels/a wider band"
+        )
+    if cov_s is None:
+        warnings.append(
+            "the Jacobian is singular at the optimum: at least one parameter has no influence on the fitted data"
+        )
+    est = []
+    for i in range(n):
+        if cov_s is not None:
+            std = math.sqrt(max(cov_s[i, i], 0.0)) * pscale[i]
+        else:
+            std = math.inf
+        lo_ci, hi_ci = p[i] - tq * std, p[i] + tq * std
+        rel = tq * std / abs(p[i]) if p[i] != 0 else math.inf
+        ident = bool(rel <= ident_rel) and names[i] not in weak
+        if not rel <= ident_rel:
+            warnings.append(
+                f"{names[i]} is not identifiable from these data: 95 % interval {p[i]:.4g} +- {tq * std:.3g} {units[i]}"
+                f" (+-{100 * rel:.0f} % of the value; rule: within +-{100 * ident_rel:.0f} %)"
+            )
+        est.append(
+            ParameterEstimate(
+                name=names[i],
+                unit=units[i],
+                value=float(p[i]),
+                initial=float(p0[i]),
+                std=float(std),
+                ci_low=float(lo_ci),
+                ci_high=float(hi_ci),
+                fitted=True,
+                at_bound=bool(at_bound_p[i]),
+                identifiable=ident,
+            )
+        )
+        if at_bound_p[i]:
+            warnings.append(
+                f"{names[i]} = {p[i]:.4g} {units[i]} lies on a constraint (positivity or the stability rule "
+                "d_f + 4 d_c >= 0): the interval is one-sided in truth, and the data may favour an inadmissible set"
+            )
+    stats = FitStats(
+        n_residuals=m,
+        n_params=n,
+        cost=0.5 * float(r @ r),
+        rms=math.sqrt(float(r @ r) / m),
+        residual_variance=s2,
+        corr_factor=kappa,
+        noise_ratio=noise_ratio,
+        covariance="sandwich" if sandwich is not None else "classical",
+        condition=cond,
+        singular_values=tuple(float(x) for x in sv),
+        nfev=int(sol.nfev),
+        status=str(sol.message),
+    )
+    return p, tuple(est), stats, warnings
+
+
+def _fd_jacobian(residual: Residual, p: Array, r: Array, step: float) -> Array:
+    """Central-difference Jacobian dr/dp (relative steps)."""
+    J = np.empty((r.size, p.size))
+    for i in range(p.size):
+        h = step * max(abs(p[i]), 1e-12)
+        pp, pm = p.copy(), p.copy()
+        pp[i] += h
+        pm[i] -= h
+        try:
+            J[:, i] = (residual(pp)[0] - residual(pm)[0]) / (2 * h)
+        except ParameterError:  # a step crosses a constraint: one-sided difference inward
+            try:
+                J[:, i] = (residual(pp)[0] - r) / h
+            except ParameterError:
+                J[:, i] = (r - residual(pm)[0]) / h
+    return J

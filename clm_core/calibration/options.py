@@ -1,0 +1,222 @@
+"""Options of a calibration, one validated value object for the CLI, the service and Python.
+
+Built from a mapping (the ``options_yaml`` of the ``clm_msgs/srv/Calibrate``
+service, the ``--options`` file of ``clm calibrate``) with
+:meth:`CalibrationOptions.from_mapping`; unknown keys are refused. Nested
+sections ``window`` (:class:`~clm_core.calibration.spectra.WindowSpec`) and
+``sampling`` (:class:`~clm_core.calibration.signals.SamplingRules`) tune the
+signal processing and the record checks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
+
+import yaml
+
+from clm_core.calibration.errors import CalibrationError
+from clm_core.calibration.residuals import NORMS
+from clm_core.calibration.signals import SamplingRules
+from clm_core.calibration.spectra import WindowSpec
+
+METHODS: tuple[str, ...] = ("impact", "receptance", "passby")
+#: Default band [Hz] per method (fmax is further limited to 0.45 x the sample rate).
+DEFAULT_BAND: Mapping[str, tuple[float, float]] = {"impact": (2.0, 150.0), "receptance": (10.0, 500.0)}
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """Everything a calibration can be told (SI units; None = the method's default).
+
+    Attributes
+    ----------
+    fmin, fmax : float or None
+        Fit band [Hz]; defaults in :data:`DEFAULT_BAND` (fmax at most 0.45 fs).
+    norm : str
+        Error norm: weighted, absolute, relative or log
+        (:mod:`clm_core.calibration.residuals`).
+    model : str
+        Impact test: soil model to fit, clm, lysmer or winkler.
+    compare : bool
+        Impact test: also fit the other soil models, for comparison.
+    n_areas : int or None
+        Impact test: areas of the model chain (default 2 max|index| + 1).
+    n_sleepers : int
+        Receptance test: sleepers of the model track (odd).
+    fit : tuple of str or None
+        Receptance / pass-by: parameters to fit (default kp dp kb db /
+        kp kb); names kp dp ms kb db (+ soil names with ``soil: joint``).
+    soil : str
+        Receptance / pass-by: ``fixed`` (from the base set) or ``joint``.
+    params : str or None
+        Base parameter file (rail, track, soil); replaces ``track``/``base_soil``.
+    track : str
+        Base track preset or file (default mevergnies).
+    base_soil : str
+        Base soil preset or file (default mevergnies).
+    base_model : str
+        Soil model of the base set for track tests (default clm).
+    initial : mapping or None
+        Starting values {name: value} instead of the first estimate.
+    channels : str or None
+        Channel-map file (default: ``channels.yaml`` in the bag directory).
+    window : WindowSpec
+        Hit segmentation and windows.
+    sampling : SamplingRules
+        Record checks.
+    min_lines : int
+        Least number of frequency lines in the band.
+    dt : float or None
+        Pass-by: integration step [s].
+    quiet_distance : float
+        Pass-by: distance [m] beyond which a wheel leaves a sleeper at rest.
+    max_nfev : int or None
+        Optimiser budget (default 200 impact, 100 receptance, 60 pass-by).
+    ident_rel : float
+        Identifiability rule: 95 % half-width at most this fraction of the value.
+    cond_max : float
+        Identifiability rule: condition number of the scaled Jacobian.
+    """
+
+    fmin: float | None = None
+    fmax: float | None = None
+    norm: str = "weighted"
+    model: str = "clm"
+    compare: bool = True
+    n_areas: int | None = None
+    n_sleepers: int = 41
+    fit: tuple[str, ...] | None = None
+    soil: str = "fixed"
+    params: str | None = None
+    track: str = "mevergnies"
+    base_soil: str = "mevergnies"
+    base_model: str = "clm"
+    initial: Mapping[str, float] | None = None
+    channels: str | None = None
+    window: WindowSpec = field(default_factory=WindowSpec)
+    sampling: SamplingRules = field(default_factory=SamplingRules)
+    min_lines: int = 16
+    dt: float | None = None
+    quiet_distance: float = 6.0
+    max_nfev: int | None = None
+    ident_rel: float = 0.25
+    cond_max: float = 1e6
+
+    def __post_init__(self) -> None:
+        if self.norm not in NORMS:
+            raise CalibrationError(f"norm = {self.norm!r}: must be one of {', '.join(NORMS)}")
+        if self.model not in ("clm", "lysmer", "winkler"):
+            raise CalibrationError(f"model = {self.model!r}: must be clm, lysmer or winkler")
+        if self.soil not in ("fixed", "joint"):
+            raise CalibrationError(f"soil = {self.soil!r}: must be fixed or joint")
+        if self.base_model not in ("rigid", "winkler", "lysmer", "clm"):
+            raise CalibrationError(f"base_model = {self.base_model!r}: must be rigid, winkler, lysmer or clm")
+        for name in ("fmin", "fmax", "dt"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise CalibrationError(f"{name} = {v!r}: must be a finite number >= 0")
+        if self.fmin is not None and self.fmax is not None and not self.fmin < self.fmax:
+            raise CalibrationError(f"fmin = {self.fmin:g} Hz, fmax = {self.fmax:g} Hz: need fmin < fmax")
+        if self.n_areas is not None and (self.n_areas < 3 or self.n_areas % 2 == 0):
+            raise CalibrationError(f"n_areas = {self.n_areas}: must be odd and >= 3")
+        if self.n_sleepers < 3 or self.n_sleepers % 2 == 0:
+            raise CalibrationError(f"n_sleepers = {self.n_sleepers}: must be odd and >= 3")
+        if self.min_lines < 4:
+            raise CalibrationError(f"min_lines = {self.min_lines}: must be >= 4")
+        if not 0 < self.ident_rel:
+            raise CalibrationError(f"ident_rel = {self.ident_rel}: must be > 0")
+        if not self.cond_max > 1:
+            raise CalibrationError(f"cond_max = {self.cond_max}: must be > 1")
+        if self.max_nfev is not None and self.max_nfev < 1:
+            raise CalibrationError(f"max_nfev = {self.max_nfev}: must be >= 1")
+
+    def band(self, method: str, fs: float | None = None) -> tuple[float, float]:
+        """The fit band [Hz] for a method: the options' values or the defaults (fmax <= 0.45 fs)."""
+        lo, hi = DEFAULT_BAND.get(method, (0.0, math.inf))
+        fmin = self.fmin if self.fmin is not None else lo
+        if self.fmax is not None:
+            fmax = self.fmax
+        else:
+            fmax = hi if fs is None else min(hi, 0.45 * fs)
+        if not fmin < fmax:
+            raise CalibrationError(f"band {fmin:g}-{fmax:g} Hz is empty (sample rate {fs} Hz)")
+        return float(fmin), float(fmax)
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any] | None) -> CalibrationOptions:
+        """Build from a mapping (YAML); unknown keys are refused.
+
+        Raises
+        ------
+        CalibrationError
+            Unknown keys or invalid values (the message names them).
+        """
+        if data is None:
+            return cls()
+        if not isinstance(data, Mapping):
+            raise CalibrationError(f"options: expected a mapping, got {type(data).__name__}")
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise CalibrationError(f"options: unknown key(s) {unknown}; allowed: {sorted(names)}")
+        kw: dict[str, Any] = dict(data)
+        for key, sub in (("window", WindowSpec), ("sampling", SamplingRules)):
+            if key in kw and not isinstance(kw[key], (WindowSpec, SamplingRules)):
+                raw = kw[key] or {}
+                if not isinstance(raw, Mapping):
+                    raise CalibrationError(f"options: {key} must be a mapping")
+                allowed = {f.name for f in fields(sub)}
+                bad = sorted(set(raw) - allowed)
+                if bad:
+                    raise CalibrationError(f"options: {key}: unknown key(s) {bad}; allowed: {sorted(allowed)}")
+                try:
+                    kw[key] = sub(**raw)
+                except TypeError as exc:
+                    raise CalibrationError(f"options: {key}: {exc}") from None
+        if "fit" in kw and kw["fit"] is not None:
+            f = kw["fit"]
+            kw["fit"] = tuple(x.strip() for x in f.split(",")) if isinstance(f, str) else tuple(str(x) for x in f)
+        if "initial" in kw and kw["initial"] is not None:
+            if not isinstance(kw["initial"], Mapping):
+                raise CalibrationError("options: initial must be a mapping {name: value}")
+            try:
+                kw["initial"] = {str(k): float(v) for k, v in kw["initial"].items()}
+            except (TypeError, ValueError):
+                raise CalibrationError(f"options: initial = {kw['initial']!r}: values must be numbers") from None
+        for key in ("fmin", "fmax", "dt", "quiet_distance", "ident_rel", "cond_max"):
+            if key in kw and kw[key] is not None:
+                try:
+                    kw[key] = float(kw[key])
+                except (TypeError, ValueError):
+                    raise CalibrationError(f"options: {key} = {kw[key]!r}: must be a number") from None
+        for key in ("n_areas", "n_sleepers", "min_lines", "max_nfev"):
+            if key in kw and kw[key] is not None:
+                v = kw[key]
+                if isinstance(v, bool) or not isinstance(v, int):
+                    raise CalibrationError(f"options: {key} = {v!r}: must be an integer")
+        return cls(**kw)
+
+    @classmethod
+    def from_yaml(cls, text: str | None) -> CalibrationOptions:
+        """Build from YAML text (empty: defaults)."""
+        if not text or not text.strip():
+            return cls()
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise CalibrationError(f"options: not valid YAML ({exc})") from None
+        return cls.from_mapping(data or {})
+
+    def with_values(self, **values: Any) -> CalibrationOptions:
+        """A copy with some values changed (None values are ignored)."""
+        return replace(self, **{k: v for k, v in values.items() if v is not None})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain mapping (YAML/JSON-ready), the inverse of :meth:`from_mapping`."""
+        d = asdict(self)
+        d["fit"] = list(self.fit) if self.fit is not None else None
+        d["initial"] = dict(self.initial) if self.initial is not None else None
+        return d

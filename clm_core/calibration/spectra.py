@@ -1,0 +1,390 @@
+"""Transfer functions from impact records: hits, windows, H1 estimator, noise.
+
+Route (standard impact-testing practice, e.g. Ewins, *Modal Testing*, 2000,
+Sec. 3.9–3.10):
+
+1. Hits are found on the force channel (threshold ``hit_threshold`` x peak,
+   hits closer than ``hit_separation`` are one hit); each hit gives a
+   segment that starts ``pretrigger`` seconds before the threshold crossing.
+   All segments have the length of the shortest.
+2. Force window: the force is kept from the segment start to the end of the
+   pulse plus a margin (half-cosine taper) and zeroed after it, which
+   removes the force-channel noise of the free-decay part.
+3. Exponential window exp(-sigma t) on force and responses, decaying to
+   ``exp_end`` at the segment end (``exp_end = 1``: none). The ratio of the
+   windowed spectra is then the transfer function at the complex frequency
+   s = sigma + j w, exactly (no added-damping correction), and the fit
+   evaluates the model there (:mod:`clm_core.calibration.models`).
+4. H1 = sum_k X_k F_k* / sum_k |F_k|^2 over the hits; velocity and
+   acceleration become displacement receptances by dividing by s and s^2
+   (from rest: V(s) = s X(s)).
+5. Noise: the standard deviation of each channel before the first hit gives
+   the variance of every spectral line, var H = (var X + |H|^2 var F) /
+   sum |F|^2, which weights the statistical (``weighted``) norm.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from clm_core.calibration.channels import ChannelSpec
+from clm_core.calibration.errors import CalibrationError
+from clm_core.calibration.signals import Recording
+
+Array = NDArray[np.float64]
+CArray = NDArray[np.complex128]
+
+
+@dataclass(frozen=True)
+class WindowSpec:
+    """Segmentation and windows of impact records.
+
+    Attributes
+    ----------
+    pretrigger : float
+        Segment start before the force crosses the hit threshold [s].
+    exp_end : float
+        Value of the exponential window at the segment end, in (0, 1];
+        1 means no exponential window.
+    hit_threshold : float
+        Hit detection threshold, fraction of the largest |force|.
+    hit_separation : float
+        Threshold crossings closer than this are one hit [s].
+    force_margin : float
+        Force window kept after the end of the pulse (|f| < 2 % of the hit's
+        peak) [s]; half of it is a cosine taper.
+    max_segment : float or None
+        Upper bound of the segment length [s] (None: up to the next hit or
+        the record end).
+    snr_window : float
+        Window after the hit over which the signal power of the reported
+        SNR is taken [s] (the definition of the synthetic bags).
+    """
+
+    pretrigger: float = 0.01
+    exp_end: float = 0.01
+    hit_threshold: float = 0.2
+    hit_separation: float = 0.05
+    force_margin: float = 0.004
+    max_segment: float | None = None
+    snr_window: float = 0.1
+
+
+@dataclass(frozen=True)
+class TransferData:
+    """Measured transfer functions of one test.
+
+    Attributes
+    ----------
+    frequency : (n_f,) array
+        Frequency lines in the band [Hz].
+    sigma : float
+        Decay rate of the exponential window [1/s]; the data are H(s) at
+        s = sigma + j 2 pi f.
+    H : (n_f, n_ch) complex array
+        Displacement receptances X / F [m/N], one column per channel.
+    std : (n_f, n_ch) array or None
+        Standard deviation of each complex H value [m/N] (None if no noise
+        estimate was possible).
+    coherence : (n_f, n_ch) array or None
+        Ordinary coherence over the hits (None for one hit).
+    channels : tuple of ChannelSpec
+        Response channels, in column order.
+    n_hits : int
+        Number of hits averaged.
+    hit_times : tuple of float
+        Threshold crossing of each hit [s].
+    segment : float
+        Segment length [s].
+    corr_factor : float
+        Correlation of neighbouring lines caused by the window,
+        L sum w^4 / (sum w^2)^2 (1 for no exponential window); inflates the
+        covariance of fitted parameters.
+    snr_db : (n_ch,) array
+        Estimated signal-to-noise ratio of each response channel, rms signal
+        over ``snr_window`` from the hit / rms noise before the first hit [dB];
+        NaN if unknown.
+    force_snr_db : float
+        The same for the force channel.
+    fs : float
+        Sample rate [Hz].
+    band : tuple of float
+        The requested band (fmin, fmax) [Hz]; ``frequency`` holds the lines inside it.
+    noise_var : (n_ch,) array or None
+        Noise variance of each response channel before the hit [SI unit^2].
+    line_cov : (n_f, n_f) complex array or None
+        Noise covariance kernel of the H1 estimate between frequency lines
+        for unit noise variance, R(k - l) sum_h conj(F_hk) F_hl / (S_k S_l)
+        with R(d) = sum_n w_n^2 exp(-2 pi j d n / L) (window correlation),
+        in the recorded quantity's units (before conversion to displacement).
+    force_cov : (n_f, n_f) complex array or None
+        Relative covariance of the H1 estimate caused by the force-channel
+        noise, shared by every channel: Cov(dH_jk, dH_il) = H_jk conj(H_il)
+        force_cov[k, l] (the same force record divides every response).
+    """
+
+    frequency: Array
+    sigma: float
+    H: CArray
+    std: Array | None
+    coherence: Array | None
+    channels: tuple[ChannelSpec, ...]
+    n_hits: int
+    hit_times: tuple[float, ...]
+    segment: float
+    corr_factor: float
+    snr_db: Array
+    force_snr_db: float
+    fs: float
+    band: tuple[float, float] = (0.0, 0.0)
+    noise_var: Array | None = None
+    line_cov: CArray | None = None
+    force_cov: CArray | None = None
+
+    @property
+    def s(self) -> CArray:
+        """Laplace variable sigma + j 2 pi f [1/s]."""
+        return np.asarray(self.sigma + 2j * np.pi * self.frequency, dtype=np.complex128)
+
+    def h_cov(self, j: int) -> CArray | None:
+        """Covariance of the displacement receptance H[:, j] between lines due to its own sensor noise.
+
+        (n_f, n_f) complex [(m/N)^2], with the window's line correlation;
+        None without a noise estimate. The force noise adds
+        ``H[:, j] conj(H[:, i]) force_cov`` (common to all channels).
+        """
+        if self.noise_var is None or self.line_cov is None:
+            return None
+        p = {"displacement": 0, "velocity": 1, "acceleration": 2}[self.channels[j].quantity]
+        conv = self.s**p
+        return np.asarray(self.noise_var[j] * self.line_cov / np.outer(conv, np.conj(conv)))
+
+
+def find_hits(force: Array, fs: float, spec: WindowSpec) -> tuple[list[int], int]:
+    """Threshold crossings of the hits and the polarity of the force (+1 / -1).
+
+    Raises
+    ------
+    CalibrationError
+        A force record with no excursion above its noise.
+    """
+    a = np.abs(force)
+    peak_i = int(np.argmax(a))
+    peak = float(a[peak_i])
+    if peak == 0.0:
+        raise CalibrationError("force record is all zeros: no hit")
+    pol = 1 if force[peak_i] > 0 else -1
+    x = pol * force
+    above = x >= spec.hit_threshold * peak
+    cross = np.nonzero(above[1:] & ~above[:-1])[0] + 1
+    if above[0]:
+        cross = np.concatenate([[0], cross])
+    sep = max(1, int(round(spec.hit_separation * fs)))
+    hits: list[int] = []
+    for c in cross:
+        if not hits or c - hits[-1] > sep:
+            hits.append(int(c))
+    return hits, pol
+
+
+def transfer_functions(
+    rec: Recording,
+    fmin: float,
+    fmax: float,
+    spec: WindowSpec | None = None,
+    min_lines: int = 16,
+) -> tuple[TransferData, list[str]]:
+    """Estimate displacement receptances of every response channel from an impact record.
+
+    Parameters
+    ----------
+    rec : Recording
+        Force [N] and responses (displacement [m], velocity [m/s] or
+        acceleration [m/s^2]) on one time grid.
+    fmin, fmax : float
+        Band [Hz]; lines outside are dropped.
+    spec : WindowSpec, optional
+        Segmentation and windows.
+    min_lines : int
+        Least number of frequency lines in the band (a shorter segment is
+        "too short a record").
+
+    Returns
+    -------
+    TransferData
+        See its attributes.
+    list of str
+        Warnings (response not decayed at the segment end, weak force in
+        part of the band, no noise estimate).
+
+    Raises
+    ------
+    CalibrationError
+        No force, no hit, a band outside (0, 0.45 fs], a segment too short
+        for ``min_lines`` lines in the band.
+    """
+    spec = spec or WindowSpec()
+    if rec.force is None:
+        raise CalibrationError("an impact or receptance test needs a force channel")
+    if not 0.0 <= fmin < fmax:
+        raise CalibrationError(f"band fmin = {fmin:g} Hz, fmax = {fmax:g} Hz: need 0 <= fmin < fmax")
+    fs = rec.fs
+    if fmax > 0.45 * fs:
+        raise CalibrationError(
+            f"fmax = {fmax:g} Hz: above 0.45 x the sample rate {fs:g} Hz (anti-alias filter region); "
+            f"use fmax <= {0.45 * fs:g} Hz"
+        )
+    if not 0.0 < spec.exp_end <= 1.0:
+        raise CalibrationError(f"exp_end = {spec.exp_end:g}: must lie in (0, 1]")
+    warnings: list[str] = []
+    f = rec.force
+    hits, pol = find_hits(f, fs, spec)
+    pre = int(round(spec.pretrigger * fs))
+    starts = [h - pre for h in hits]
+    if starts[0] < 0:
+        raise CalibrationError(
+            f"the first hit at t = {rec.t[hits[0]]:.4f} s is closer to the record start than the pretrigger "
+            f"{spec.pretrigger:g} s; record longer before the hit or lower pretrigger"
+        )
+    n = f.size
+    ends = [*starts[1:], n]
+    L = min(e - s0 for s0, e in zip(starts, ends))
+    if spec.max_segment is not None:
+        L = min(L, int(round(spec.max_segment * fs)))
+    T = L / fs
+    lines = np.arange(L // 2 + 1) * fs / L
+    band = (lines >= max(fmin, 1e-12)) & (lines <= fmax)
+    if int(band.sum()) < min_lines:
+        raise CalibrationError(
+            f"too short a record: segments of {T:.4g} s after each hit give {int(band.sum())} frequency lines in "
+            f"{fmin:g}-{fmax:g} Hz (rule: at least {min_lines}, line spacing 1/T = {1 / T:.3g} Hz); record at least "
+            f"{min_lines / (fmax - fmin):.3g} s after each hit or widen the band"
+        )
+    sigma = -math.log(spec.exp_end) / T if spec.exp_end < 1.0 else 0.0
+    tt = np.arange(L) / fs
+    w_exp = np.exp(-sigma * tt)
+    # noise before the first hit
+    noise_x: Array | None = None
+    noise_f: float | None = None
+    if starts[0] >= 32:
+        pre_x = rec.responses[: starts[0]]
+        noise_x = np.std(pre_x - pre_x.mean(axis=0), axis=0)
+        noise_f = float(np.std(f[: starts[0]] - f[: starts[0]].mean()))
+    else:
+        warnings.append(
+            f"no noise estimate: only {starts[0]} samples before the first hit (rule: >= 32); the 'weighted' norm "
+            "falls back to 'absolute'"
+        )
+    Sxf = np.zeros((band.sum(), rec.responses.shape[1]), dtype=complex)
+    Sff = np.zeros(band.sum())
+    Sxx = np.zeros((band.sum(), rec.responses.shape[1]))
+    sum_w2_f = 0.0
+    F_hits: list[CArray] = []
+    wf_hits: list[Array] = []
+    sig_pow = np.zeros(rec.responses.shape[1])
+    force_pow = 0.0
+    margin = max(3, int(round(spec.force_margin * fs)))
+    for s0 in starts:
+        seg_f = f[s0 : s0 + L] * pol
+        seg_x = rec.responses[s0 : s0 + L] * pol
+        # force window: up to the end of the pulse + margin, cosine taper over the second half of the margin
+        pk = int(np.argmax(seg_f))
+        below = np.nonzero(seg_f[pk:] < 0.02 * seg_f[pk])[0]
+        end = pk + (int(below[0]) if below.size else L - pk)
+        wf = np.zeros(L)
+        stop = min(L, end + margin)
+        flat = min(L, end + margin // 2)
+        wf[:flat] = 1.0
+        if stop > flat:
+            wf[flat:stop] = 0.5 * (1 + np.cos(np.pi * (np.arange(stop - flat) + 1) / (stop - flat + 1)))
+        Fk = np.fft.rfft(seg_f * wf * w_exp)[band]
+        F_hits.append(Fk)
+        wf_hits.append(wf * w_exp)
+        Xk = np.fft.rfft(seg_x * w_exp[:, None], axis=0)[band]
+        Sxf += Xk * np.conj(Fk)[:, None]
+        Sff += np.abs(Fk) ** 2
+        Sxx += np.abs(Xk) ** 2
+        sum_w2_f += float(np.sum((wf * w_exp) ** 2))
+        act = slice(pre, min(L, pre + max(1, int(round(spec.snr_window * fs)))))
+        sig_pow += np.mean((seg_x[act] - (seg_x[:pre].mean(axis=0) if pre else 0.0)) ** 2, axis=0)
+        force_pow += float(np.mean(seg_f[act] ** 2))
+        tail = max(1, L // 10)
+        peak_x = np.max(np.abs(seg_x), axis=0)
+        tail_x = np.max(np.abs(seg_x[-tail:] * w_exp[-tail:, None]), axis=0)
+        if noise_x is not None:
+            undecayed = (tail_x > 0.05 * peak_x) & (tail_x > 5 * noise_x)
+        else:
+            undecayed = tail_x > 0.05 * peak_x
+        if np.any(undecayed):
+            names = [rec.channels[i].name for i in np.nonzero(undecayed)[0][:3]]
+            warnings.append(
+                f"response not decayed at the end of the {T:.3g} s segment ({', '.join(names)}...): leakage; "
+                "lower exp_end or record longer after each hit"
+            )
+    K = len(starts)
+    H = Sxf / Sff[:, None]
+    fr = lines[band]
+    s = sigma + 2j * np.pi * fr
+    power = {"displacement": 0, "velocity": 1, "acceleration": 2}
+    conv = np.column_stack([s ** power[c.quantity] for c in rec.channels])
+    std = None
+    snr = np.full(len(rec.channels), np.nan)
+    fsnr = float("nan")
+    sum_w2 = float(np.sum(w_exp**2))
+    line_cov = None
+    fcov = None
+    if noise_x is not None and noise_f is not None:
+        kb = np.nonzero(band)[0]
+        dk = (kb[:, None] - kb[None, :]) % L
+        Rm = np.fft.fft(w_exp**2)[dk]  # R(d) = sum w^2 exp(-2 pi j d n / L), d taken modulo L
+        Fh = np.array(F_hits)  # (K, n_f)
+        SS = np.outer(Sff, Sff)
+        line_cov = Rm * (np.conj(Fh).T @ Fh) / SS  # sum_h conj(F_hk) F_hl R(k - l) / (S_k S_l)
+        fcov = np.zeros((kb.size, kb.size), dtype=complex)
+        for Fk, wk in zip(F_hits, wf_hits):
+            fcov += np.fft.fft(wk**2)[dk] * np.outer(np.conj(Fk), Fk)
+        fcov *= noise_f**2 / SS
+        var_h = noise_x[None, :] ** 2 * np.real(np.diag(line_cov))[:, None] + np.abs(H) ** 2 * np.real(
+            np.diag(fcov)
+        )[:, None]
+        std = np.sqrt(var_h) / np.abs(conv)
+        with np.errstate(divide="ignore"):
+            snr = 10 * np.log10((sig_pow / K) / np.maximum(noise_x**2, 1e-300))
+            fsnr = 10 * math.log10(max(force_pow / K, 1e-300) / max(noise_f**2, 1e-300))
+    coh = None
+    if K >= 2:
+        coh = np.abs(Sxf) ** 2 / (Sff[:, None] * Sxx)
+    Hd = np.asarray(H / conv, dtype=np.complex128)
+    weak = np.sqrt(Sff / K) < 0.01 * np.max(np.sqrt(Sff / K))
+    if np.any(weak):
+        warnings.append(
+            f"force spectrum more than 40 dB below its maximum above {fr[np.argmax(weak)]:.4g} Hz: the hammer "
+            "does not excite the top of the band (harder tip or lower fmax)"
+        )
+    corr = float(L * np.sum(w_exp**4) / sum_w2**2)
+    return (
+        TransferData(
+            frequency=fr,
+            sigma=sigma,
+            H=Hd,
+            std=std,
+            coherence=coh,
+            channels=rec.channels,
+            n_hits=K,
+            hit_times=tuple(float(rec.t[h]) for h in hits),
+            segment=T,
+            corr_factor=corr,
+            snr_db=snr,
+            force_snr_db=fsnr,
+            fs=fs,
+            band=(float(fmin), float(fmax)),
+            noise_var=None if noise_x is None else noise_x**2,
+            line_cov=line_cov,
+            force_cov=fcov,
+        ),
+        warnings,
+    )

@@ -1,0 +1,738 @@
+"""Synthetic calibration bags from known parameters, with sensor noise.
+
+The records are made the way a measurement would be, by an independent route
+from the one the fit uses:
+
+- impact and receptance tests: time integration (Newmark average
+  acceleration, :class:`clm_core.newmark.NewmarkLinear`) of the CLM chain
+  (:func:`clm_core.soil.chain.chain_matrices`) or of the assembled track
+  (:func:`clm_core.track.assemble`) under a hammer pulse, at ``oversample``
+  times the output rate; then the acquisition: the same anti-alias FIR filter
+  and decimation on every channel (:func:`scipy.signal.resample_poly`);
+- pass-by: the streaming engine :class:`clm_core.stepper.TrackSimulator`
+  under moving wheel loads, at a finer step than the output rate;
+- noise: white Gaussian noise on every channel, force included, at a stated
+  signal-to-noise ratio SNR = 20 log10(rms_active / sigma_noise), rms_active
+  being the rms of the clean channel over ``snr_window`` seconds from each
+  hit (impact, receptance) or over the whole record (pass-by).
+
+Bags are written with rosbags (mcap by default, zstd chunk compression;
+sqlite3 as an option), with the channel map (``channels.yaml``) and the known
+values (``truth.yaml``) inside the bag directory. Message styles:
+
+- ``stamped`` (default): ``geometry_msgs/msg/WrenchStamped`` (force,
+  ``wrench.force.z``) and ``geometry_msgs/msg/Vector3Stamped`` (responses,
+  ``vector.z``), one message per sample and channel, ``header.stamp`` =
+  acquisition time;
+- ``float64``: ``std_msgs/msg/Float64`` per sample (time = bag log time);
+- ``block``: ``std_msgs/msg/Float64MultiArray`` blocks of ``block_size``
+  samples (first sample at the log time, ``sample_rate`` in the map);
+- pass-by: ``clm_msgs/msg/WheelLoads`` and ``clm_msgs/msg/SleeperResponse``
+  (the suite's messages; writing them needs ``clm_ros`` importable).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+from scipy.signal import resample_poly
+
+from clm_core.calibration.bagio import WheelLoadRecord
+from clm_core.calibration.channels import ChannelMap, ChannelSpec, parse_channel_map, unit_factor
+from clm_core.calibration.errors import CalibrationError
+from clm_core.calibration.passby import simulate_channels
+from clm_core.calibration.signals import Signal
+from clm_core.excitation import decay_pulse
+from clm_core.newmark import NewmarkLinear
+from clm_core.params import ModelParams, SoilParams, load_model, load_soil
+from clm_core.soil.chain import chain_matrices
+from clm_core.track import assemble
+
+Array = NDArray[np.float64]
+Storage = Literal["mcap", "sqlite3"]
+Style = Literal["stamped", "float64", "block"]
+
+#: Bag time [ns] of t = 0 in synthetic bags.
+T0_NS = 1_700_000_000_000_000_000
+#: Where each SleeperResponse displacement field is measured.
+_FIELD_LOCATION = {"rail_deflection": "rail", "sleeper_displacement": "sleeper", "area_displacement": "soil"}
+
+
+@dataclass(frozen=True)
+class SyntheticRecord:
+    """A synthetic test before it is written to a bag.
+
+    Attributes
+    ----------
+    method : {'impact', 'receptance', 'passby'}
+    force : Signal or None
+        Hammer force [N].
+    responses : tuple of Signal
+        Responses in SI units.
+    loads : WheelLoadRecord or None
+        Wheel loads (pass-by).
+    truth : mapping
+        The parameters the record was made with (parameter-file layout).
+    settings : mapping
+        Generator settings (for truth.yaml).
+    snr_db : float or None
+        Noise level (None: noise-free).
+    """
+
+    method: str
+    force: Signal | None
+    responses: tuple[Signal, ...]
+    loads: WheelLoadRecord | None
+    truth: Mapping[str, Any]
+    settings: Mapping[str, Any]
+    snr_db: float | None = None
+
+
+@dataclass(frozen=True)
+class SyntheticBag:
+    """A written synthetic bag.
+
+    Attributes
+    ----------
+    path : Path
+        rosbag2 directory.
+    channels : Path
+        Channel map (``channels.yaml`` in the bag directory).
+    truth : Path
+        Known values (``truth.yaml`` in the bag directory).
+    record : SyntheticRecord
+        What was written.
+    """
+
+    path: Path
+    channels: Path
+    truth: Path
+    record: SyntheticRecord
+
+
+def hammer_pulse(
+    t: Array,
+    kind: Literal["half-sine", "eq1"] = "half-sine",
+    amplitude: float = 10e3,
+    t_hit: float = 0.1,
+    duration: float = 0.003,
+) -> Array:
+    """Hammer force [N], positive downwards.
+
+    Parameters
+    ----------
+    t : array
+        Times [s].
+    kind : {'half-sine', 'eq1'}
+        ``half-sine``: A sin(pi (t - t_hit) / duration) for t_hit <= t <= t_hit + duration;
+        ``eq1``: the decay pulse of Eq. (1), A exp(-(t - t_hit) / duration) (``duration`` = t_d).
+    amplitude : float
+        Peak force A [N].
+    t_hit : float
+        Onset [s].
+    duration : float
+        Contact time of the half-sine, or t_d of Eq. (1) [s].
+    """
+    if kind == "half-sine":
+        on = (t >= t_hit) & (t <= t_hit + duration)
+        out = np.zeros_like(t)
+        out[on] = amplitude * np.sin(np.pi * (t[on] - t_hit) / duration)
+        return out
+    if kind == "eq1":
+        return decay_pulse(t, amplitude, t_hit, duration)
+    raise CalibrationError(f"pulse = {kind!r}: must be 'half-sine' or 'eq1'")
+
+
+def _spec(topic: str, quantity: str, units: str, location: str, index: int, name: str | None = None,
+          field: str | None = None) -> ChannelSpec:
+    return ChannelSpec(
+        name=name or topic,
+        topic=topic,
+        quantity=quantity,  # type: ignore[arg-type]
+        units=units,
+        factor=unit_factor(quantity, units, topic),
+        location=location,  # type: ignore[arg-type]
+        index=index,
+        field=field,
+    )
+
+
+def _area_topic(j: int) -> str:
+    return f"/soil/area_{'p' if j >= 0 else 'm'}{abs(j):02d}"
+
+
+def _acquire(t_fine: Array, signals: Array, oversample: int) -> tuple[Array, Array]:
+    """Anti-alias filter and decimate every column alike (linear-phase FIR, no delay)."""
+    if oversample == 1:
+        return t_fine, signals
+    out = resample_poly(signals, 1, oversample, axis=0)
+    t = t_fine[0] + np.arange(out.shape[0]) * (t_fine[1] - t_fine[0]) * oversample
+    return t, out
+
+
+def _newmark(M: Any, C: Any, K: Any, dt: float, F: Array, dofs: Sequence[int], what: str) -> Array:
+    """Displacement, velocity and acceleration of ``dofs`` (3, n_t, n_dofs), from rest."""
+    integ = NewmarkLinear(M, C, K, dt)
+    n_t = F.shape[0]
+    out = np.zeros((3, n_t, len(dofs)))
+    d = np.asarray(dofs)
+    for k in range(1, n_t):
+        integ.step(F[k])
+        out[0, k], out[1, k], out[2, k] = integ.u[d], integ.v[d], integ.a[d]
+    if not np.all(np.isfinite(out)):
+        raise CalibrationError(f"{what}: the simulation diverged")
+    return out
+
+
+def simulate_impact(
+    soil: SoilParams | None = None,
+    n_areas: int = 41,
+    measured: Sequence[int] | None = None,
+    quantity: Literal["displacement", "velocity", "acceleration"] = "velocity",
+    units: str | None = None,
+    fs: float = 1000.0,
+    duration: float = 1.0,
+    hit_times: Sequence[float] = (0.2,),
+    pulse: Literal["half-sine", "eq1"] = "half-sine",
+    pulse_duration: float = 0.003,
+    amplitude: float = 10e3,
+    oversample: int = 10,
+) -> SyntheticRecord:
+    """Noise-free soil impact test on a CLM chain (Eq. 7–8) of ``n_areas`` areas.
+
+    Parameters
+    ----------
+    soil : SoilParams, optional
+        Truth (default: Mevergnies, Table 1, CLM).
+    n_areas : int
+        Areas of the chain 2n + 1; the hammer hits the centre one (area 0).
+    measured : sequence of int, optional
+        Area indices with a sensor (default: all, -n..n).
+    quantity : {'displacement', 'velocity', 'acceleration'}
+        What the sensors measure (geophones: velocity).
+    units : str, optional
+        Recorded unit (default SI: m, m/s, m/s^2).
+    fs : float
+        Sample rate [Hz].
+    duration : float
+        Record length [s].
+    hit_times : sequence of float
+        Hammer hits [s] (onsets).
+    pulse : {'half-sine', 'eq1'}
+        Pulse shape (:func:`hammer_pulse`).
+    pulse_duration : float
+        Contact time (half-sine) or t_d (Eq. 1) [s].
+    amplitude : float
+        Peak force [N].
+    oversample : int
+        Simulation steps per output sample.
+    """
+    soil = soil or load_soil("mevergnies")
+    n = n_areas // 2
+    measured = list(range(-n, n + 1)) if measured is None else list(measured)
+    if any(abs(j) > n for j in measured):
+        raise CalibrationError(f"measured areas {measured}: must lie in -{n}..{n}")
+    units = units or {"displacement": "m", "velocity": "m/s", "acceleration": "m/s^2"}[quantity]
+    dt = 1.0 / (fs * oversample)
+    n_t = int(round(duration * fs)) * oversample
+    t = np.arange(n_t, dtype=np.float64) * dt
+    f = np.zeros_like(t)
+    for th in hit_times:
+        f += hammer_pulse(t, pulse, amplitude, th, pulse_duration)
+    M, C, K = chain_matrices(soil, n_areas)
+    F = np.zeros((n_t, n_areas))
+    F[:, n] = f
+    cols = [n + j for j in measured]
+    uva = _newmark(M, C, K, dt, F, cols, "impact simulation")
+    q = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
+    ts, data = _acquire(t, np.column_stack([f, uva[q]]), oversample)
+    fspec = _spec("/hammer/force", "force", "N", "area", 0)
+    force = Signal(fspec, ts, data[:, 0])
+    resp = tuple(
+        Signal(_spec(_area_topic(j), quantity, units, "area", j), ts, data[:, 1 + k]) for k, j in enumerate(measured)
+    )
+    settings = {
+        "n_areas": n_areas,
+        "measured_areas": (
+            f"{min(measured)}..{max(measured)}"
+            if measured == list(range(min(measured), max(measured) + 1))
+            else measured
+        ),
+        "quantity": quantity,
+        "units": units,
+        "fs_hz": fs,
+        "duration_s": duration,
+        "hit_times_s": list(hit_times),
+        "pulse": pulse,
+        "pulse_duration_s": pulse_duration,
+        "amplitude_N": amplitude,
+        "simulation": f"Newmark average acceleration, dt = {dt:g} s, anti-alias FIR + decimation by {oversample}",
+    }
+    return SyntheticRecord("impact", force, resp, None, {"soil": soil.to_dict()}, settings)
+
+
+def simulate_receptance(
+    params: ModelParams | None = None,
+    n_sleepers: int = 41,
+    rail_sleepers: Sequence[int] = (0, 1, 2, 3, 4),
+    sleeper_sleepers: Sequence[int] = (0,),
+    quantity: Literal["displacement", "velocity", "acceleration"] = "acceleration",
+    units: str | None = None,
+    fs: float = 2000.0,
+    duration: float = 0.6,
+    hit_times: Sequence[float] = (0.1,),
+    pulse: Literal["half-sine", "eq1"] = "half-sine",
+    pulse_duration: float = 0.0008,
+    amplitude: float = 20e3,
+    oversample: int = 40,
+) -> SyntheticRecord:
+    """Noise-free rail receptance (hammer) test on the assembled track (paper Sec. 5).
+
+    The hammer hits the rail above the central sleeper (sleeper 0); sensors
+    sit on the rail above sleepers ``rail_sleepers`` and on sleepers
+    ``sleeper_sleepers`` (indices relative to the hit sleeper).
+
+    Parameters
+    ----------
+    params : ModelParams, optional
+        Truth (default: Mevergnies track, Table 2, on the Mevergnies CLM soil, Table 1).
+    n_sleepers : int
+        Sleepers of the model track (odd; the hit one at the centre).
+    rail_sleepers, sleeper_sleepers : sequence of int
+        Instrumented positions.
+    quantity, units, fs, duration, hit_times, pulse, pulse_duration, amplitude
+        As in :func:`simulate_impact` (accelerometers by default).
+    oversample : int
+        Simulation steps per output sample; 40 keeps the Newmark frequency
+        error f'/f - 1 = (pi f dt)^2 / 3 below 2e-5 at 500 Hz (sharp track
+        resonances turn a larger one into percent errors of |H|).
+    """
+    params = params or load_model("mevergnies", "mevergnies", "clm")
+    system = assemble(params, n_sleepers)
+    c = n_sleepers // 2
+    units = units or {"displacement": "m", "velocity": "m/s", "acceleration": "m/s^2"}[quantity]
+    for j in [*rail_sleepers, *sleeper_sleepers]:
+        if not 0 <= c + j < n_sleepers:
+            raise CalibrationError(f"sleeper {j}: outside the {n_sleepers}-sleeper model track")
+    dofs = [int(system.rail_w[system.sleeper_node[c + j]]) for j in rail_sleepers]
+    dofs += [int(system.sleeper_dof[c + j]) for j in sleeper_sleepers]
+    dt = 1.0 / (fs * oversample)
+    n_t = int(round(duration * fs)) * oversample
+    t = np.arange(n_t, dtype=np.float64) * dt
+    f = np.zeros_like(t)
+    for th in hit_times:
+        f += hammer_pulse(t, pulse, amplitude, th, pulse_duration)
+    F = np.zeros((n_t, system.n_dof))
+    F[:, system.rail_w[system.sleeper_node[c]]] = f
+    uva = _newmark(system.M, system.C, system.K, dt, F, dofs, "receptance simulation")
+    q = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
+    ts, data = _acquire(t, np.column_stack([f, uva[q]]), oversample)
+    force = Signal(_spec("/track/hammer/force", "force", "N", "rail", 0), ts, data[:, 0])
+    specs = [_spec(f"/track/rail_s{j:02d}/{quantity}", quantity, units, "rail", j) for j in rail_sleepers]
+    specs += [_spec(f"/track/sleeper_s{j:02d}/{quantity}", quantity, units, "sleeper", j) for j in sleeper_sleepers]
+    resp = tuple(Signal(sp, ts, data[:, 1 + k]) for k, sp in enumerate(specs))
+    settings = {
+        "n_sleepers": n_sleepers,
+        "rail_sleepers": list(rail_sleepers),
+        "sleeper_sleepers": list(sleeper_sleepers),
+        "quantity": quantity,
+        "units": units,
+        "fs_hz": fs,
+        "duration_s": duration,
+        "hit_times_s": list(hit_times),
+        "pulse": pulse,
+        "pulse_duration_s": pulse_duration,
+        "amplitude_N": amplitude,
+        "simulation": f"Newmark average acceleration, dt = {dt:g} s, anti-alias FIR + decimation by {oversample}",
+    }
+    return SyntheticRecord("receptance", force, resp, None, params.to_dict(), settings)
+
+
+def simulate_passby(
+    params: ModelParams | None = None,
+    sleepers: Sequence[int] = (0, 1),
+    fields: Sequence[str] = ("rail_deflection", "sleeper_displacement"),
+    speed: float = 25.0,
+    axle_offsets: Sequence[float] = (0.0, 2.5),
+    static_load: float = 80e3,
+    dynamic_amplitude: float = 0.1,
+    dynamic_frequency: float = 9.0,
+    run_in: float = 12.0,
+    fs: float = 1000.0,
+    dt: float = 1e-4,
+) -> SyntheticRecord:
+    """Noise-free pass-by: wheel loads moving over instrumented sleepers (TrackSimulator).
+
+    Parameters
+    ----------
+    params : ModelParams, optional
+        Truth (default: Mevergnies track on the Mevergnies CLM soil).
+    sleepers : sequence of int
+        Instrumented global sleeper indices (sleeper ``g`` at ``x = g d``).
+    fields : sequence of str
+        Measured ``SleeperResponse`` fields (``rail_deflection``,
+        ``sleeper_displacement``, ``area_displacement``).
+    speed : float
+        Train speed [m/s].
+    axle_offsets : sequence of float
+        Wheel positions behind the first wheel [m].
+    static_load : float
+        Wheel load [N].
+    dynamic_amplitude, dynamic_frequency : float
+        Relative amplitude [-] and frequency [Hz] of a load fluctuation
+        (wheel bounce), which makes the damping visible.
+    run_in : float
+        Distance from the first wheel's start to the first sleeper, and
+        from the last wheel to the end [m].
+    fs : float
+        Output (recording) rate [Hz].
+    dt : float
+        Simulation step [s] (an integer fraction of 1 / fs).
+    """
+    params = params or load_model("mevergnies", "mevergnies", "clm")
+    if any(f not in _FIELD_LOCATION for f in fields):
+        raise CalibrationError(f"fields {list(fields)}: each must be one of {', '.join(_FIELD_LOCATION)}")
+    every = int(round(1.0 / (fs * dt)))
+    if abs(every * dt * fs - 1.0) > 1e-9:
+        raise CalibrationError(f"dt = {dt:g} s: must divide the output interval 1/fs = {1 / fs:g} s")
+    d = params.track.spacing
+    offs = np.asarray(axle_offsets, dtype=float)
+    x0 = min(sleepers) * d - run_in
+    x1 = max(sleepers) * d + run_in + float(offs.max())
+    T = (x1 - x0) / speed
+    n_t = int(round(T / dt))
+    t = np.arange(n_t + 1, dtype=np.float64) * dt
+    P = x0 - offs[None, :] + speed * t[:, None]
+    phase = 1.3 * np.arange(offs.size)
+    F = static_load * (1.0 + dynamic_amplitude * np.sin(2 * np.pi * dynamic_frequency * t[:, None] + phase[None, :]))
+    specs = [
+        _spec("/clm/sleeper_response", "displacement", "m", _FIELD_LOCATION[fl], g, name=f"{fl}[{g}]", field=fl)
+        for fl in fields for g in sleepers
+    ]
+    kk = np.arange(0, n_t + 1, every)
+    loads = WheelLoadRecord(t=t, wheel_ids=np.arange(offs.size, dtype=np.int64), positions=P, forces=F)
+    tt = t[kk]
+    out = simulate_channels(params, loads, specs, tt, dt)
+    resp = tuple(Signal(sp, tt, out[:, k]) for k, sp in enumerate(specs))
+    loads = WheelLoadRecord(t=tt, wheel_ids=loads.wheel_ids, positions=P[kk], forces=F[kk])
+    settings = {
+        "sleepers": list(sleepers),
+        "fields": list(fields),
+        "speed_m_per_s": speed,
+        "axle_offsets_m": offs.tolist(),
+        "static_load_N": static_load,
+        "dynamic_amplitude": dynamic_amplitude,
+        "dynamic_frequency_hz": dynamic_frequency,
+        "fs_hz": fs,
+        "simulation": f"TrackSimulator (Newmark average acceleration), dt = {dt:g} s, fixed window",
+    }
+    return SyntheticRecord("passby", None, resp, loads, params.to_dict(), settings)
+
+
+def add_noise(rec: SyntheticRecord, snr_db: float, seed: int = 0, snr_window: float = 0.1) -> SyntheticRecord:
+    """Add white Gaussian noise to every channel at the given SNR.
+
+    sigma = rms_active / 10^(snr_db / 20), rms_active the rms of the clean
+    channel over ``snr_window`` seconds from each hit (impact, receptance), or
+    over the whole record (pass-by). The force channel gets noise too.
+    """
+    rng = np.random.default_rng(seed)
+    hits = rec.settings.get("hit_times_s")
+
+    def noisy(sig: Signal) -> Signal:
+        if hits:
+            mask = np.zeros(sig.t.size, dtype=bool)
+            for th in hits:
+                mask |= (sig.t >= th) & (sig.t < th + snr_window)
+            active = sig.values[mask]
+        else:
+            active = sig.values - np.mean(sig.values)
+        rms = float(np.sqrt(np.mean(active**2)))
+        sigma = rms / 10 ** (snr_db / 20)
+        return replace(sig, values=sig.values + rng.normal(0.0, sigma, sig.values.size))
+
+    settings = dict(rec.settings)
+    settings["noise"] = {
+        "snr_db": snr_db,
+        "seed": seed,
+        "definition": (
+            "white Gaussian noise on every channel (force included), sigma = rms_active / 10^(SNR/20), rms_active = "
+            + (f"rms of the clean channel over {snr_window:g} s from each hit" if hits else "rms of the clean record")
+        ),
+    }
+    return replace(
+        rec,
+        force=noisy(rec.force) if rec.force is not None else None,
+        responses=tuple(noisy(s) for s in rec.responses),
+        settings=settings,
+        snr_db=snr_db,
+    )
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def _typestore(need_clm: bool) -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    if not need_clm:
+        return get_typestore(Stores.ROS2_JAZZY)
+    try:
+        from clm_ros.msg_types import typestore
+    except ImportError:
+        raise CalibrationError(
+            "writing clm_msgs messages (pass-by bags) needs the clm_ros package importable "
+            "(ros2_ws/src/clm_ros on PYTHONPATH, or a sourced ROS workspace)"
+        ) from None
+    return typestore()
+
+
+def channel_map_for(rec: SyntheticRecord, style: Style = "stamped", block_size: int = 100) -> ChannelMap:
+    """The channel map describing a record written with :func:`write_bag`."""
+    def entry(s: ChannelSpec, with_loc: bool) -> dict[str, Any]:
+        e: dict[str, Any] = {"topic": s.topic, "units": s.units}
+        if s.name != s.topic:
+            e["name"] = s.name
+        if with_loc:
+            if s.location == "area":
+                e["area"] = s.index
+            else:
+                e["sleeper"] = s.index
+                e["location"] = s.location
+            e["quantity"] = s.quantity
+        if s.field:
+            e["field"] = s.field
+        if style == "block" and rec.method != "passby":
+            e["sample_rate"] = float(rec.settings["fs_hz"])
+        return e
+
+    data: dict[str, Any] = {"format": "clm-calibration-channels/1", "test": rec.method}
+    if rec.force is not None:
+        data["force"] = entry(rec.force.spec, False)
+    if rec.loads is not None:
+        data["loads"] = {"topic": "/clm/wheel_loads"}
+    data["channels"] = [entry(s.spec, True) for s in rec.responses]
+    return parse_channel_map(data, "<synthetic>")
+
+
+def write_bag(
+    rec: SyntheticRecord,
+    path: str | Path,
+    storage: Storage = "mcap",
+    style: Style = "stamped",
+    block_size: int = 100,
+    compress: bool = True,
+) -> SyntheticBag:
+    """Write a synthetic record as a rosbag2 bag with ``channels.yaml`` and ``truth.yaml``.
+
+    Parameters
+    ----------
+    rec : SyntheticRecord
+        What to write (values in SI units; written in each channel's unit).
+    path : path
+        New bag directory (must not exist).
+    storage : {'mcap', 'sqlite3'}
+        Storage plugin; mcap chunks are zstd-compressed when ``compress``.
+    style : {'stamped', 'float64', 'block'}
+        Message style of impact/receptance channels (module docstring).
+    block_size : int
+        Samples per ``Float64MultiArray`` block.
+    compress : bool
+        zstd chunk compression (mcap only).
+
+    Returns
+    -------
+    SyntheticBag
+    """
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    out = Path(path)
+    if out.exists():
+        raise CalibrationError(f"bag {str(out)!r} exists; choose a new path")
+    if storage not in ("mcap", "sqlite3"):
+        raise CalibrationError(f"storage = {storage!r}: must be 'mcap' or 'sqlite3'")
+    if style not in ("stamped", "float64", "block"):
+        raise CalibrationError(f"style = {style!r}: must be stamped, float64 or block")
+    ts = _typestore(rec.method == "passby")
+    T = ts.types
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    writer = Writer(out, version=9, storage_plugin=plugin)
+    if storage == "mcap" and compress:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    cmap = channel_map_for(rec, style, block_size)
+
+    def header(t_ns: int, frame: str) -> Any:
+        return T["std_msgs/msg/Header"](
+            stamp=T["builtin_interfaces/msg/Time"](sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000),
+            frame_id=frame,
+        )
+
+    with writer:
+        if rec.method == "passby":
+            _write_passby(writer, ts, rec, header)
+        else:
+            sigs = ([rec.force] if rec.force is not None else []) + list(rec.responses)
+            for sig in sigs:
+                _write_channel(writer, ts, sig, style, block_size, header)
+    (out / "channels.yaml").write_text(
+        "# Channel map of this bag (format: docs/calibration.md)\n" + yaml.safe_dump(cmap.to_dict(), sort_keys=False)
+    )
+    truth = {
+        "method": rec.method,
+        "generator": "clm_core.calibration.synthetic",
+        "truth": _plain(dict(rec.truth)),
+        "settings": _plain(dict(rec.settings)),
+        "storage": storage,
+        "style": style if rec.method != "passby" else "clm_msgs",
+    }
+    (out / "truth.yaml").write_text(
+        "# Known values this synthetic bag was generated from (SI units)\n" + yaml.safe_dump(truth, sort_keys=False)
+    )
+    return SyntheticBag(out, out / "channels.yaml", out / "truth.yaml", rec)
+
+
+def _plain(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {str(k): _plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_plain(v) for v in o]
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return o
+
+
+def _write_channel(writer: Any, ts: Any, sig: Signal, style: str, block_size: int, header: Any) -> None:
+    T = ts.types
+    spec = sig.spec
+    raw = sig.values / spec.factor  # SI -> recorded unit
+    stamps = T0_NS + np.round(sig.t * 1e9).astype(np.int64)
+    frame = spec.topic.strip("/").replace("/", "_")
+    if style == "stamped":
+        if spec.quantity == "force":
+            mt = "geometry_msgs/msg/WrenchStamped"
+            conn = writer.add_connection(spec.topic, mt, typestore=ts)
+            V3, W = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Wrench"]
+            zero = V3(x=0.0, y=0.0, z=0.0)
+            for st, v in zip(stamps.tolist(), raw.tolist()):
+                msg = T[mt](header=header(st, frame), wrench=W(force=V3(x=0.0, y=0.0, z=v), torque=zero))
+                writer.write(conn, st + 150_000, ts.serialize_cdr(msg, mt))
+        else:
+            mt = "geometry_msgs/msg/Vector3Stamped"
+            conn = writer.add_connection(spec.topic, mt, typestore=ts)
+            V3 = T["geometry_msgs/msg/Vector3"]
+            for st, v in zip(stamps.tolist(), raw.tolist()):
+                msg = T[mt](header=header(st, frame), vector=V3(x=0.0, y=0.0, z=v))
+                writer.write(conn, st + 150_000, ts.serialize_cdr(msg, mt))
+    elif style == "float64":
+        mt = "std_msgs/msg/Float64"
+        conn = writer.add_connection(spec.topic, mt, typestore=ts)
+        for st, v in zip(stamps.tolist(), raw.tolist()):
+            writer.write(conn, st, ts.serialize_cdr(T[mt](data=v), mt))
+    else:
+        mt = "std_msgs/msg/Float64MultiArray"
+        conn = writer.add_connection(spec.topic, mt, typestore=ts)
+        lay = T["std_msgs/msg/MultiArrayLayout"]
+        dim = T["std_msgs/msg/MultiArrayDimension"]
+        for i in range(0, raw.size, block_size):
+            blk = raw[i : i + block_size]
+            msg = T[mt](layout=lay(dim=[dim(label="samples", size=blk.size, stride=blk.size)], data_offset=0),
+                        data=np.ascontiguousarray(blk, dtype=np.float64))
+            writer.write(conn, int(stamps[i]), ts.serialize_cdr(msg, mt))
+
+
+def _write_passby(writer: Any, ts: Any, rec: SyntheticRecord, header: Any) -> None:
+    T = ts.types
+    assert rec.loads is not None
+    L = rec.loads
+    mt_w = "clm_msgs/msg/WheelLoads"
+    mt_s = "clm_msgs/msg/SleeperResponse"
+    cw = writer.add_connection("/clm/wheel_loads", mt_w, typestore=ts)
+    cs = writer.add_connection("/clm/sleeper_response", mt_s, typestore=ts)
+    WL = T["clm_msgs/msg/WheelLoad"]
+    speed = float(rec.settings.get("speed_m_per_s", math.nan))
+    for k in range(L.t.size):
+        st = T0_NS + int(round(L.t[k] * 1e9))
+        wheels = [
+            WL(id=int(w), position=float(L.positions[k, i]), force=float(L.forces[k, i]), speed=speed)
+            for i, w in enumerate(L.wheel_ids)
+            if np.isfinite(L.positions[k, i])
+        ]
+        writer.write(cw, st, ts.serialize_cdr(T[mt_w](header=header(st, "line"), wheels=wheels), mt_w))
+    sleepers = sorted({s.spec.index for s in rec.responses})
+    fields = ("rail_deflection", "sleeper_displacement", "area_displacement", "soil_force")
+    t = rec.responses[0].t
+    vals = {f: np.full((t.size, len(sleepers)), np.nan) for f in fields}
+    for s in rec.responses:
+        vals[s.spec.field or "rail_deflection"][:, sleepers.index(s.spec.index)] = s.values / s.spec.factor
+    idx = np.asarray(sleepers, dtype=np.int64)
+    pos = idx * float(rec.truth["track"]["spacing"])
+    for k in range(t.size):
+        st = T0_NS + int(round(t[k] * 1e9))
+        msg = T[mt_s](
+            header=header(st, "line"),
+            sleeper_index=idx,
+            position=pos,
+            **{f: np.ascontiguousarray(vals[f][k]) for f in fields},
+        )
+        writer.write(cs, st + 150_000, ts.serialize_cdr(msg, mt_s))
+
+
+def write_impact_bag(
+    path: str | Path,
+    *,
+    snr_db: float | None = 30.0,
+    seed: int = 0,
+    storage: Storage = "mcap",
+    style: Style = "stamped",
+    **simulate: Any,
+) -> SyntheticBag:
+    """Simulate a soil impact test (:func:`simulate_impact`), add noise, write the bag.
+
+    ``snr_db=None`` writes the noise-free record. Other keywords go to
+    :func:`simulate_impact` (``soil``, ``n_areas``, ``measured``, ``quantity``,
+    ``fs``, ``duration``, ``hit_times``, ``pulse``, ...).
+    """
+    rec = simulate_impact(**simulate)
+    if snr_db is not None:
+        rec = add_noise(rec, snr_db, seed)
+    return write_bag(rec, path, storage=storage, style=style)
+
+
+def write_receptance_bag(
+    path: str | Path,
+    *,
+    snr_db: float | None = 30.0,
+    seed: int = 0,
+    storage: Storage = "mcap",
+    style: Style = "stamped",
+    **simulate: Any,
+) -> SyntheticBag:
+    """Simulate a rail receptance test (:func:`simulate_receptance`), add noise, write the bag."""
+    rec = simulate_receptance(**simulate)
+    if snr_db is not None:
+        rec = add_noise(rec, snr_db, seed)
+    return write_bag(rec, path, storage=storage, style=style)
+
+
+def write_passby_bag(
+    path: str | Path,
+    *,
+    snr_db: float | None = 30.0,
+    seed: int = 0,
+    storage: Storage = "mcap",
+    **simulate: Any,
+) -> SyntheticBag:
+    """Simulate a pass-by (:func:`simulate_passby`), add noise, write the bag (clm_msgs types)."""
+    rec = simulate_passby(**simulate)
+    if snr_db is not None:
+        rec = add_noise(rec, snr_db, seed)
+    return write_bag(rec, path, storage=storage)

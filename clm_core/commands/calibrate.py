@@ -1,0 +1,115 @@
+"""``clm calibrate``: fit model parameters to a recorded bag (issue 6).
+
+    clm calibrate BAG --method impact|receptance|passby --out DIR
+        [--channels MAP.yaml] [--fmin HZ] [--fmax HZ] [--norm NORM]
+        [--model clm|lysmer|winkler] [--fit kp,dp,kb,db] [--soil fixed|joint]
+        [--params FILE] [--options OPTIONS.yaml] [--no-plots] [--no-progress]
+
+Writes params.yaml, soil.yaml / track.yaml, summary.json, report.md and PNG
+plots into DIR (:func:`clm_core.calibration.report.write_outputs`). A
+progress bar (tqdm) is shown on a terminal only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from clm_core.calibration.options import METHODS, CalibrationOptions
+from clm_core.calibration.residuals import NORMS
+from clm_core.errors import InputError
+
+
+def register(sub: Any) -> None:
+    """Add the ``calibrate`` sub-command."""
+    p = sub.add_parser(
+        "calibrate",
+        help="fit soil/track parameters to a recorded bag (impact, receptance, pass-by)",
+        description="Fit model parameters to a rosbag2 bag (mcap or sqlite3): a soil impact test (CLM soil), a "
+        "hammer test on the rail (track parameters) or a pass-by (output error through the time-domain engine). "
+        "The channel map (topic -> place, quantity, unit) is --channels or channels.yaml in the bag directory; "
+        "format in docs/calibration.md.",
+    )
+    p.add_argument("bag", help="rosbag2 bag directory or .mcap file")
+    p.add_argument("--method", required=True, choices=METHODS, help="test type")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--channels", default=None, help="channel map YAML (default: channels.yaml in the bag directory)")
+    p.add_argument("--fmin", type=float, default=None, help="lowest fitted frequency [Hz] (impact 2, receptance 10)")
+    p.add_argument("--fmax", type=float, default=None,
+                   help="highest fitted frequency [Hz] (impact 150, receptance 500)")
+    p.add_argument("--norm", default=None, choices=NORMS,
+                   help="error norm (default weighted: by the measured noise)")
+    p.add_argument("--model", default=None, choices=("clm", "lysmer", "winkler"),
+                   help="soil model (impact; default clm)")
+    p.add_argument("--fit", default=None,
+                   help="parameters to fit, comma-separated (receptance/passby), e.g. kp,dp,kb,db,ms")
+    p.add_argument("--soil", default=None, choices=("fixed", "joint"), help="track tests: keep or fit the soil")
+    p.add_argument("--params", default=None, help="base parameter file (rail, track, soil)")
+    p.add_argument("--options", default=None, help="options YAML (all settings; see docs/calibration.md)")
+    p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Calibrate and write the outputs; print a one-line summary per parameter."""
+    from clm_core.calibration.api import calibrate
+    from clm_core.calibration.report import write_outputs
+
+    if args.options:
+        path = Path(args.options)
+        if not path.is_file():
+            raise InputError(f"--options {args.options!r}: file not found")
+        opts = CalibrationOptions.from_yaml(path.read_text())
+    else:
+        opts = CalibrationOptions()
+    opts = CalibrationOptions.from_mapping(
+        {
+            **opts.to_dict(),
+            **{
+                k: v
+                for k, v in {
+                    "channels": args.channels,
+                    "fmin": args.fmin,
+                    "fmax": args.fmax,
+                    "norm": args.norm,
+                    "model": args.model,
+                    "fit": args.fit,
+                    "soil": args.soil,
+                    "params": args.params,
+                }.items()
+                if v is not None
+            },
+        }
+    )
+    show = not args.no_progress and sys.stderr.isatty()
+    bar = None
+    progress = None
+    if show:
+        from tqdm import tqdm
+
+        bar = tqdm(total=100, desc="calibrate", unit="%", file=sys.stderr, leave=False,
+                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}")
+
+        def progress(stage: str, frac: float) -> None:
+            assert bar is not None
+            bar.set_postfix_str(stage)
+            bar.update(max(0, int(round(100 * frac)) - bar.n))
+
+    try:
+        result = calibrate(args.bag, args.method, opts, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    files = write_outputs(result, args.out, plots=not args.no_plots)
+    print(f"calibrate: {args.method} test, {result.model}, band {result.band[0]:g}-{result.band[1]:g} Hz, "
+          f"{result.norm} norm, misfit {result.misfit:.3g}, {result.elapsed_s:.1f} s")
+    for p in result.parameters:
+        flag = "" if p.identifiable else "  (not identifiable)"
+        print(f"  {p.name:3s} = {p.value:.5g} {p.unit}   95% [{p.ci_low:.5g}, {p.ci_high:.5g}]{flag}")
+    for w in result.warnings:
+        print(f"  warning: {w}")
+    print(f"  -> {files[0].parent}")
+    return 0
