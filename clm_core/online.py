@@ -278,7 +278,8 @@ class OnlineTrackModel:
                     Reason.UNKNOWN_ID, f"wheel id(s) {unknown} not in the wheel set {sorted(self._slot)}"
                 )
         spread = float(fr.positions.max() - fr.positions.min())
-        allowed = (self.n_sleepers - 1 - self.sim.lead_sleepers - self.sim.margin_sleepers) * self.params.track.spacing
+        # one bay less than the nominal zone: the window moves by whole bays (TrackSimulator._required_first)
+        allowed = (self.n_sleepers - 2 - self.sim.lead_sleepers - self.sim.margin_sleepers) * self.params.track.spacing
         if spread > allowed:
             raise Rejected(
                 Reason.OUTSIDE_WINDOW,

@@ -246,3 +246,111 @@ def run(args: argparse.Namespace) -> int:
         f"{fit.residual_alternating:.3f}) -> {out}"
     )
     return 0
+
+
+# ----------------------------------------------------------------------------- --impact-bag (issue 7)
+#
+# ``--impact-bag`` also writes ``DIR/reference_impact_bag``: a soil impact test
+# bag (calibration-bag format) of the rigorous row's response to the Eq. (1)
+# pulse, with ``reference.yaml`` (clm_core.halfspace.impact_bag). It reuses
+# the sweep just written (``sweep.npz``, ``summary.json``): no second BEM run.
+# Added by wrapping ``register`` and ``run``; without the flag nothing changes.
+
+_register_base = register
+_run_base = run
+
+#: Sample rate of the reference impact bag [Hz] (that of the calibration bags).
+IMPACT_BAG_FS = 1000.0
+#: Directory of the reference impact bag inside ``--out``.
+IMPACT_BAG_DIR = "reference_impact_bag"
+
+
+def _snr_arg(text: str) -> float | None:
+    """``--bag-snr`` value: a number [dB] or ``none`` (noise-free)."""
+    if text.strip().lower() in ("none", "inf", "off"):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give an SNR in dB or 'none'") from None
+
+
+def register(subparsers: Any) -> None:  # type: ignore[no-redef]
+    """Add the ``soil-calibrate`` sub-command (with ``--impact-bag``) to ``subparsers``."""
+    _register_base(subparsers)
+    p = subparsers.choices["soil-calibrate"]
+    g = p.add_argument_group("reference impact bag (--impact-bag)")
+    g.add_argument(
+        "--impact-bag",
+        action="store_true",
+        help=f"also write DIR/{IMPACT_BAG_DIR}: a soil impact test bag (calibration format, geophones on all "
+        "areas) of the rigorous response to the Eq. (1) pulse, with reference.yaml; needs --df <= 2 with "
+        f"{IMPACT_BAG_FS:g}/df an even integer (default 1 Hz: 1 s record) and --sweep-max <= {IMPACT_BAG_FS / 2:g}",
+    )
+    g.add_argument("--bag-storage", choices=("mcap", "sqlite3"), default="mcap", help="bag storage (default mcap)")
+    g.add_argument("--bag-snr", type=_snr_arg, default=30.0, help="SNR of the bag's noise [dB] or 'none' (default 30)")
+    g.add_argument("--bag-seed", type=int, default=1, help="noise seed (default 1)")
+    p.set_defaults(func=run)
+
+
+def _check_impact_bag(args: argparse.Namespace) -> Path:
+    ratio = IMPACT_BAG_FS / args.df
+    if args.df > 2.0 or abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) % 2:
+        raise ParameterError(
+            f"--impact-bag with --df = {args.df:g} Hz: the record length is 1/df, which must exceed 0.5 s, and "
+            f"{IMPACT_BAG_FS:g} Hz / df must be an even integer; use --df 1 (or 0.5, 2)"
+        )
+    if args.sweep_max > IMPACT_BAG_FS / 2:
+        raise ParameterError(
+            f"--impact-bag with --sweep-max = {args.sweep_max:g} Hz: must be <= {IMPACT_BAG_FS / 2:g} Hz "
+            f"(the bag is sampled at {IMPACT_BAG_FS:g} Hz)"
+        )
+    bag = Path(args.out) / IMPACT_BAG_DIR
+    if bag.exists() and not ((bag / "reference.yaml").is_file() and (bag / "metadata.yaml").is_file()):
+        raise PresetError(f"{bag}: exists and is not a reference impact bag; remove it or choose another --out")
+    return bag
+
+
+def run(args: argparse.Namespace) -> int:  # type: ignore[no-redef]
+    """Run the calibration (and write the reference impact bag with ``--impact-bag``); returns 0 on success."""
+    if not getattr(args, "impact_bag", False):
+        return _run_base(args)
+    import shutil
+
+    from clm_core.halfspace.impact_bag import RigorousReference, write_reference_impact_bag
+
+    _check_args(args)
+    bag_path = _check_impact_bag(args)
+    code = _run_base(args)
+    if code != 0:
+        return code
+    out: Path = args.out
+    ref = RigorousReference.from_soil_calibrate_output(out)
+    if bag_path.exists():
+        shutil.rmtree(bag_path)
+    bag = write_reference_impact_bag(
+        bag_path,
+        reference=ref,
+        snr_db=args.bag_snr,
+        seed=args.bag_seed,
+        storage=args.bag_storage,
+        fs=IMPACT_BAG_FS,
+    )
+    summary_path = out / "summary.json"
+    summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    summary["files"] = [*summary.get("files", []), IMPACT_BAG_DIR]
+    summary["impact_bag"] = {
+        "path": IMPACT_BAG_DIR,
+        "storage": args.bag_storage,
+        "snr_db": args.bag_snr,
+        "seed": args.bag_seed,
+        "fs_hz": IMPACT_BAG_FS,
+    }
+    summary_path.write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    size = sum(p.stat().st_size for p in bag.path.iterdir())
+    snr = "noise-free" if args.bag_snr is None else f"SNR {args.bag_snr:g} dB"
+    print(
+        f"reference impact bag ({bag.record.settings['n_areas']} areas, {snr}, {args.bag_storage}, "
+        f"{size / 1e6:.2f} MB) -> {bag.path}; calibrate with: clm calibrate {bag.path} --method impact"
+    )
+    return 0

@@ -113,6 +113,7 @@ class StreamingVehicle:
         self.veh.set_state(tr.static_state(self.w + r0 + self.delta), None, self.P)
         self._history: dict[int, Array] = {0: self.w.copy()}
         self.contact_lost_steps = 0
+        self._last_response_step = 0
         self.warm_up()
 
     def warm_up(self) -> None:
@@ -139,8 +140,17 @@ class StreamingVehicle:
         tt = self.t if t is None else t
         return np.asarray(self.sim.wheel_positions(np.array([tt]))[0])
 
+    #: time constant of the low-pass on the track correction [s]: only slow differences
+    #: between track and predictor are fed back (a fast, delayed correction through the
+    #: stiff Hertz contact would be unstable)
+    correction_time_constant: float = 0.02
+
     def set_track_response(self, step: int, rail_deflection: ArrayLike) -> None:
-        """The track's rail deflection under the wheels [m] at step ``step`` (closes the loop)."""
+        """The track's rail deflection under the wheels [m] at step ``step`` (closes the loop).
+
+        The correction w_track - w_predictor is low-pass filtered
+        (``correction_time_constant``) before it is applied.
+        """
         w = np.asarray(rail_deflection, dtype=float)
         n = self.train.n_wheels
         if w.shape != (n,):
@@ -152,7 +162,10 @@ class StreamingVehicle:
             raise InputError(f"track response for step {step}: no prediction kept for it")
         for old in [k for k in self._history if k < step]:
             del self._history[old]
-        self.offset = np.ascontiguousarray(w - ref)
+        gap = max(step - self._last_response_step, 1) * self.dt
+        self._last_response_step = step
+        alpha = 1.0 - math.exp(-gap / self.correction_time_constant)
+        self.offset = np.ascontiguousarray(self.offset + alpha * ((w - ref) - self.offset))
 
     def advance(self, n_steps: int) -> Array:
         """Advance ``n_steps`` steps of ``dt``; return the contact forces P [N] at the end."""

@@ -19,6 +19,8 @@ setup(
     description="ROS 2 nodes of the CLM railway track-soil dynamics suite",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "calibration_node = clm_ros.calibration_node:main",
+        ],
     },
 )

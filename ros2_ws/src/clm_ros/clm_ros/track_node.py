@@ -63,8 +63,11 @@ def _desc(text: str, read_only: bool = False, frange: tuple[float, float] | None
 
 
 def qos_profile(depth: int, reliability: str) -> QoSProfile:
-    """QoS for the data topics (keep-last ``depth``, reliable or best effort)."""
+    """QoS for the data topics: keep-all (``depth`` 0, the default: nothing is dropped, a slow
+    subscriber slows the publisher down) or keep-last ``depth``; reliable or best effort."""
     rel = ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT
+    if depth <= 0:
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=rel)
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel)
 
 
@@ -88,7 +91,8 @@ class TrackNode(LifecycleNode):
         dp("accept_new_wheels", False, _desc("accept wheel ids not in the first message (wheels entering)"))
         dp("publish_every", 1, _desc("publish the response of every N-th accepted message [-] (1: all)",
                                      irange=(1, 100000)))
-        dp("qos_depth", 1000, _desc("keep-last depth of the data topics [-]", read_only=True, irange=(1, 100000)))
+        dp("qos_depth", 0, _desc("keep-last depth of the data topics [-]; 0: keep all (no message dropped)",
+                                  read_only=True, irange=(0, 100000)))
         dp("qos_reliability", "reliable", _desc("reliable or best_effort", read_only=True))
         dp("frame_id", "track", _desc("frame id of the output headers"))
         dp("diagnostics_period", 1.0, _desc("period of /diagnostics [s]", read_only=True, frange=(0.01, 3600.0)))
