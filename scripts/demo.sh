@@ -1,9 +1,15 @@
 #!/usr/bin/env bash
 # The main job of the README: set up the environment, then run the end-to-end
-# demo on shipped defaults, leaving its outputs in results/.
+# demo on shipped defaults: the vehicle simulator node and the track-soil node
+# as separate processes over DDS (loopback), recorded to a bag and plotted in
+# results/demo/, then the frequency-domain report of every preset in
+# results/report/.
+#   scripts/demo.sh [clm demo options, e.g. --duration 5]
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 bash "$root/scripts/bootstrap.sh"
 cd "$root"
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
-exec "$root/.venv/bin/python" -m clm_core.demo "$@"
+"$root/.venv/bin/clm" demo --out results/demo "$@"
+"$root/.venv/bin/clm" report --out results/report
+echo "demo: results in $root/results/ (demo/: bag, plots, summary.json; report/: receptances)"

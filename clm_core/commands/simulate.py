@@ -65,6 +65,9 @@ def register(sub: Any) -> None:
                    "peaks use every step)")
     p.add_argument("--no-csv", action="store_true", help="write the NPZ only (no sleepers.csv / wheels.csv)")
     p.add_argument("--out", required=True, help="output directory")
+    from clm_core.vehicle.cli_support import add_vehicle_arguments
+
+    add_vehicle_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -93,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the simulation and write the outputs; return 0."""
     t_setup = time.perf_counter()
     params = model_from_args(args)
+    if args.vehicle:
+        return _run_vehicle(args, params)
     d = params.track.spacing
     dt = float(args.dt)
     if not (math.isfinite(dt) and dt > 0):
@@ -231,4 +236,18 @@ def run(args: argparse.Namespace) -> int:
     print(f"peak sleeper soil force {peak_force / 1e3:.2f} kN (sleeper {g_peak}), "
           f"max rail deflection {max_defl * 1e3:.3f} mm, real-time factor {summary['real_time_factor']:.2f} "
           f"-> {d_out}")
+    return 0
+
+
+def _run_vehicle(args: argparse.Namespace, params: Any) -> int:
+    """``--vehicle``: the coupled vehicle-track simulation (clm_core.vehicle)."""
+    from clm_core.vehicle.cli_support import run_vehicle_simulation
+
+    if args.duration is None:
+        args.duration = 2.0
+    if args.loads_file:
+        raise InputError("--vehicle and --loads-file: give one of them (the vehicle computes its own wheel loads)")
+    summary = run_vehicle_simulation(args, params, out_dir(args.out))
+    keys = ("peak_wheel_load_N", "rms_wheel_load_N", "peak_sleeper_soil_force_N", "contact_losses", "real_time_factor")
+    print("simulate --vehicle: " + ", ".join(f"{k} = {summary[k]}" for k in keys if k in summary) + f" -> {args.out}")
     return 0

@@ -22,7 +22,9 @@ def register(sub: Any) -> None:
     p.add_argument("--rate", type=float, default=1000.0, help="wheel-load rate [Hz] (default 1000)")
     p.add_argument("--dt", type=float, default=1e-4, help="track time step [s]")
     p.add_argument("--sleepers", type=int, default=61, help="track window [sleepers]")
-    p.add_argument("--irregularity", default="fra5")
+    p.add_argument("--irregularity", default="german-low",
+                   help="rail irregularity: none, fra1..fra6, german-low, german-high or a CSV (default german-low, "
+                   "a high-speed line)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--open-loop", action="store_true", help="vehicle on the quasi-static track (no feedback)")
     p.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])

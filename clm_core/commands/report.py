@@ -1,27 +1,31 @@
-"""The suite's end-to-end demo on shipped defaults (``scripts/demo.sh``).
+"""``clm report``: the frequency-domain report of every preset.
 
-Frequency-domain report: the receptance of every track on every soil preset
-and model, and the CLM soil chain of every soil, written to ``results/``
-with a ``results/index.json`` of the resonance peaks.
+The receptance of every track on every soil preset (rigid, Lysmer, CLM) and
+the CLM soil chain of every soil, written to ``--out`` with an
+``index.json`` of the resonance peaks and delays. Part of ``scripts/demo.sh``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
-from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
-from clm_core.cli import main as clm
 from clm_core.params import list_presets
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the demo; return the exit code."""
-    ap = argparse.ArgumentParser(prog="clm-demo", description=__doc__)
-    ap.add_argument("--out", default="results", help="output directory (default results/)")
-    args = ap.parse_args(argv)
+def register(sub: Any) -> None:
+    """Add the ``report`` sub-command."""
+    p = sub.add_parser("report", help="frequency-domain report of every track and soil preset")
+    p.add_argument("--out", default="results/report", help="output directory (default results/report)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write every receptance and soil-chain report; return the exit code."""
+    from clm_core.cli import main as clm
+
     out = Path(args.out)
     index: dict[str, object] = {}
     for track in list_presets("tracks"):
@@ -46,9 +50,5 @@ def main(argv: Sequence[str] | None = None) -> int:
             "eq23_delay_s": s["eq23_delay_s"],
         }
     (out / "index.json").write_text(json.dumps(index, indent=2) + "\n")
-    print(f"demo: {len(index)} reports in {out}/ (index.json lists the peaks and delays)")
+    print(f"report: {len(index)} reports in {out}/ (index.json lists the peaks and delays)")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
