@@ -1,6 +1,6 @@
 """Compiled kernels (numba) of the streaming time integrator.
 
-Three pieces, all O(n) per call for a banded system of n DOFs:
+The pieces, all O(n) per call for a banded system of n DOFs:
 
 - :func:`ldlt_envelope`: LDL^T factorisation of a symmetric positive definite
   matrix in envelope (profile, "skyline") storage, done once per window
@@ -8,6 +8,9 @@ Three pieces, all O(n) per call for a banded system of n DOFs:
   first non-zero column ``first[i]`` to ``i - 1`` at ``L[ptr[i]:ptr[i+1]]``;
   there is no fill outside the envelope.
 - :func:`solve_envelope`: forward and back substitution with that factor.
+- :func:`unit_columns`, :func:`free_response`: columns of the inverse and
+  the load-free step increment, the pieces of the compiled vehicle coupling
+  (:mod:`clm_core.vehicle._coupled_kernel`).
 - :func:`run_steps`: many steps of Newmark average acceleration in the
   increment form (see :mod:`clm_core.stepper`)::
 
@@ -206,6 +209,47 @@ def run_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     return kout
 
 
+@njit(cache=True)
+def unit_columns(first, ptr, L, D, dofs, cols, rows):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """cols[rows[q]] = A^-1 e_{dofs[q]} for the factor (first, ptr, L, D) of A: columns of the inverse."""
+    n = D.shape[0]
+    for q in range(dofs.shape[0]):
+        x = cols[rows[q]]
+        for i in range(n):
+            x[i] = 0.0
+        x[dofs[q]] = 1.0
+        solve_envelope(first, ptr, L, D, x)
+
+
+@njit(cache=True)
+def free_response(indptr, indices, Ka, Mb, first, ptr, L, Dinv, u, v, z, x):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """x = K_eff^-1 (-2 K u + (4/dt) M v + z): the step increment with no new load (f_{n+1} = 0).
+
+    ``z`` holds the loads f_n scattered on the DOFs on entry and is zero on
+    exit (the fused right-hand side / forward substitution of
+    :func:`run_steps`).
+    """
+    n = u.shape[0]
+    for i in range(n):
+        acc = z[i]
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            acc += Ka[p] * u[j] + Mb[p] * v[j]
+        fi = first[i]
+        pi = ptr[i] - fi
+        for k in range(fi, i):
+            acc -= L[pi + k] * z[k]
+        z[i] = acc
+        x[i] = acc * Dinv[i]
+    for i in range(n - 1, -1, -1):
+        xi = x[i]
+        z[i] = 0.0
+        fi = first[i]
+        pi = ptr[i] - fi
+        for k in range(fi, i):
+            x[k] -= L[pi + k] * xi
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel on a tiny system."""
     first = np.array([0, 0], dtype=np.int64)
@@ -235,3 +279,5 @@ def warm_up() -> None:
     run_steps(indptr, indices, Ka, Mb, first, ptr, L, 1.0 / D, 1.0, u, v, np.zeros(2), rhs, pd, pv, ld, lw, F,
               sd, ad, sd, kb, kb, o.copy(), o.copy(), 1, 0, o.copy(), o.copy(), o.copy(), o.copy(),
               np.zeros(1), np.zeros(1))
+    unit_columns(first, ptr, L, D, np.array([1], dtype=np.int64), np.zeros((1, 2)), np.zeros(1, dtype=np.int64))
+    free_response(indptr, indices, Ka, Mb, first, ptr, L, 1.0 / D, u, v, np.zeros(2), rhs)

@@ -62,6 +62,13 @@ Wheels
     convective term speed x slope). A wheel that is not on the track is given
     position NaN (its force must then be 0 or NaN); the number of wheels may
     change between calls.
+
+Vehicle coupling
+    :meth:`TrackSimulator.begin_step` / :meth:`TrackSimulator.finish_step`
+    split a step around a contact solution found by the caller;
+    :meth:`TrackSimulator.coupled_chunk` / :meth:`TrackSimulator.coupled_commit`
+    hand the same steps, for a stretch without window shift, to a compiled
+    kernel (:mod:`clm_core.vehicle._coupled_kernel`).
 """
 
 from __future__ import annotations
@@ -328,6 +335,10 @@ class _Operator:
     Dinv: Array
     orientation: str = "free"
     static_env: tuple[IntArray, IntArray, Array, Array] | None = None
+    # columns K_eff^-1 e_d of rail DOFs d that wheels have loaded (compiled coupling), filled on demand
+    cols: Array | None = None  # (capacity, n); row col_slot[d] is the column of DOF d
+    col_slot: IntArray | None = None  # (n,) row of each DOF's column, -1: not computed
+    n_cols: int = 0
 
 
 def _envelope(A: sp.spmatrix) -> tuple[IntArray, IntArray, Array, Array]:
@@ -530,6 +541,8 @@ class TrackSimulator:
         self._t0 = 0.0
         self._k = 0
         self._pending: tuple[Array, Array, IntArray, Array, Array, Array, int] | None = None
+        self._chunk: tuple[Array, IntArray, Array] = (np.zeros((0, 0)), np.zeros((0, 0), dtype=np.int64),
+                                                      np.zeros((0, 0)))
 
     # ------------------------------------------------------------------ properties
 
@@ -1228,6 +1241,111 @@ class TrackSimulator:
         fs, rw = self._sleeper_fields()[:2]
         np.maximum(self._pk_force, fs, out=self._pk_force)
         np.maximum(self._pk_rail, rw, out=self._pk_rail)
+
+    # ------------------------------------------------------------------ compiled two-phase steps
+
+    def coupled_chunk(self, positions: ArrayLike) -> tuple[int, tuple[object, ...]]:
+        """Prepare consecutive two-phase steps for a compiled coupling kernel (vehicle coupling).
+
+        The compiled equivalent of calling :meth:`begin_step` and
+        :meth:`finish_step` for each row of ``positions``
+        (:mod:`clm_core.vehicle._coupled_kernel`): the window is placed for
+        row 0 as :meth:`begin_step` would place it, then the rows it holds
+        without another shift are handed to the kernel, which advances the
+        state in place. Complete with :meth:`coupled_commit`.
+
+        Parameters
+        ----------
+        positions : (S, n_w) array_like
+            Wheel positions [m] at the next S step times t + dt, t + 2 dt, ...
+            (all finite).
+
+        Returns
+        -------
+        m : int
+            Leading rows (1 <= m <= S) the window holds without a shift.
+        args : tuple
+            Kernel inputs: ``(indptr, indices, Ka, Mb, first, ptr, L, Dinv,
+            a1, u, v, z, x, prev_dofs, prev_vals, ldofs, lw, cols, slot,
+            s_dof, a_dof, r_dof, kb, db, pk_force, pk_rail)``: the operator
+            (see :func:`clm_core._kernels.run_steps`), the state and work
+            arrays (updated in place; z is zero), the element DOFs and
+            Hermite weights (m, 4 n_w) of the wheels, the columns
+            ``cols[slot[d]] = K_eff^-1 e_d`` of every DOF in ``ldofs`` and the
+            sleeper maps and running peaks.
+
+        Raises
+        ------
+        InputError
+            Non-finite positions, or wheels that the window cannot hold (as
+            :meth:`begin_step`).
+        """
+        P = np.ascontiguousarray(np.array(positions, dtype=float, ndmin=2))
+        if P.ndim != 2 or P.shape[0] < 1 or not np.all(np.isfinite(P)):
+            raise InputError(f"coupled_chunk: positions of shape {P.shape} must be finite rows (S >= 1, n_wheels)")
+        self._pending = None
+        t1 = self.t + self.dt
+        self._place(P[0], "begin_step", t1)
+        lo, hi = self.allowed_range()
+        eps = _TOL * self.spacing
+        front, rear = P.max(axis=1), P.min(axis=1)
+        viol = np.nonzero((front > hi + eps) | (rear < lo - eps))[0]
+        m = P.shape[0] if viol.size == 0 else int(viol[0])
+        if m < 1:  # pragma: no cover - _place made row 0 fit
+            raise InputError(f"coupled_chunk: cannot place the window for wheels at {rear[0]:g} .. {front[0]:g} m")
+        ldofs, lw = self._weights(P[:m])
+        cols, slot = self._columns(ldofs)
+        op = self._op
+        first, ptr, L, _ = op.env
+        self._chunk = (P[:m], ldofs, lw)
+        return m, (
+            op.indptr, op.indices, op.Ka, op.Mb, first, ptr, L, op.Dinv, self._a1,
+            self._u, self._v, self._z, self._y, self._prev_dofs, self._prev_vals,
+            ldofs, lw, cols, slot, self._s_dof, self._a_dof, self._r_dof, op.kb, op.db,
+            self._pk_force, self._pk_rail,
+        )
+
+    def coupled_commit(self, steps: int, forces_last: ArrayLike) -> None:
+        """Record that a kernel advanced ``steps`` rows of the last :meth:`coupled_chunk`.
+
+        ``forces_last``: the wheel forces [N] of the last step made (the
+        loads f_n of the next step).
+        """
+        P, ldofs, lw = self._chunk
+        steps = int(steps)
+        if not 0 <= steps <= P.shape[0]:
+            raise InputError(f"coupled_commit: {steps} steps, the chunk has {P.shape[0]}")
+        if steps == 0:
+            return
+        F = np.array(forces_last, dtype=float, ndmin=1)
+        self._k += steps
+        self._prev_dofs = ldofs[steps - 1].copy()
+        self._prev_vals = lw[steps - 1] * np.repeat(F, 4)
+        self._pos, self._F = P[steps - 1].copy(), F.copy()
+        self._pending = None
+
+    def _columns(self, dofs: IntArray) -> tuple[Array, IntArray]:
+        """Columns K_eff^-1 e_d of the current operator for the DOFs ``dofs`` (computed once per operator)."""
+        op = self._op
+        n = self._u.size
+        if op.cols is None or op.col_slot is None:
+            op.cols = np.empty((min(n, 32), n))
+            op.col_slot = np.full(n, -1, dtype=np.int64)
+            op.n_cols = 0
+        need = np.unique(dofs)
+        need = np.ascontiguousarray(need[op.col_slot[need] < 0])
+        if need.size:
+            k = op.n_cols + need.size
+            if k > op.cols.shape[0]:
+                grown = np.empty((min(n, max(k, 2 * op.cols.shape[0])), n))
+                grown[: op.n_cols] = op.cols[: op.n_cols]
+                op.cols = grown
+            rows = np.arange(op.n_cols, k, dtype=np.int64)
+            first, ptr, L, D = op.env
+            kern.unit_columns(first, ptr, L, D, need, op.cols, rows)
+            op.col_slot[need] = rows
+            op.n_cols = k
+        return op.cols, op.col_slot
 
     # ------------------------------------------------------------------ outputs
 

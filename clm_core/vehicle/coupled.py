@@ -20,6 +20,13 @@ explicit scheme or a staggered (force-lagged) coupling; dt is chosen for the
 frequencies one wants to resolve (1e-4 s: up to ~1 kHz with < 3 % period
 error, see :mod:`clm_core.newmark`).
 
+With ``engine='stream'`` the steps run in a compiled kernel
+(:mod:`clm_core.vehicle._coupled_kernel`), many per call between window
+shifts, with the track's wheel compliance G from cached columns of the
+window's K_eff^-1 instead of n_w solves per step; ``engine='stream-python'``
+makes the same steps one by one through the calls above (the same results to
+rounding; a reference, and the path of any other engine).
+
 Positions: the first wheel is at ``x_start`` at t = 0 and the train runs
 towards +x at constant speed; wheel i is at x_start + V t - offset_i.
 """
@@ -42,7 +49,7 @@ from clm_core.vehicle.irregularity import Irregularity
 from clm_core.vehicle.multibody import Train, VehicleNewmark
 
 Array = NDArray[np.float64]
-Engine = Literal["stream", "fixed"]
+Engine = Literal["stream", "stream-python", "fixed"]
 
 
 class TrackEngine(Protocol):
@@ -245,10 +252,16 @@ class CoupledSimulation:
         Rail profile, isolated defects and wheel flats (default: smooth).
     x_start : float
         Position of the first wheel at t = 0 [m].
-    engine : {'stream', 'fixed'}
+    engine : {'stream', 'stream-python', 'fixed'}
         ``'stream'``: :class:`clm_core.stepper.TrackSimulator`, the moving
-        window (production). ``'fixed'``: :class:`FixedTrack`, a long fixed
-        track (reference, for validation).
+        window (production), stepped by the compiled coupled kernel
+        (:mod:`clm_core.vehicle._coupled_kernel`, many steps per call between
+        window shifts). ``'stream-python'``: the same engine and scheme
+        stepped per step from Python through ``begin_step`` / ``finish_step``
+        (the generic path of any engine; same results to rounding, ~10x
+        slower; kept as the reference of the compiled path).
+        ``'fixed'``: :class:`FixedTrack`, a long fixed track (reference, for
+        validation).
     n_sleepers : int, optional
         Window size of the streaming engine; default the smallest >= 61 that
         holds the wheelbase with ``lead_sleepers`` ahead and the engine's
@@ -293,8 +306,8 @@ class CoupledSimulation:
             raise ParameterError(f"dt = {dt} s: must be finite, > 0 and <= 0.01 s")
         if not math.isfinite(x_start):
             raise ParameterError(f"x_start = {x_start}: must be finite")
-        if engine not in ("stream", "fixed"):
-            raise ParameterError(f"engine = {engine!r}: one of 'stream', 'fixed'")
+        if engine not in ("stream", "stream-python", "fixed"):
+            raise ParameterError(f"engine = {engine!r}: one of 'stream', 'stream-python', 'fixed'")
         self.train = train
         self.params = params
         self.speed = float(speed)
@@ -415,21 +428,25 @@ class CoupledSimulation:
             from tqdm import tqdm
 
             bar = tqdm(total=n_steps, unit="step", desc="coupled")
+        compiled = self.engine == "stream" and self._factory is None
         t_wall = time.perf_counter()
-        for n in range(1, n_steps + 1):
-            w_free, _v_free, G = track.begin_step(X[n])
-            delta, P, it = veh.step_with_contact(w_free, G, R[n], self.hertz, delta)
-            track.finish_step(P)
-            load[n], comp[n], iters[n] = P, delta, it
-            zw[n] = veh.u[wd]
-            wr[n] = w_free + G @ P
-            du = veh.u - u0
-            energy[n] = 0.5 * (veh.v @ M @ veh.v + du @ K @ du)
-            if n % self.snapshot_every == 0:
-                snaps.append(self._take(track.snapshot()))
-                self._merge_peaks(track, peaks)
-            if bar is not None and n % 200 == 0:
-                bar.update(200)
+        if compiled:
+            self._run_compiled(track, veh, u0, X, R, delta, load, comp, zw, wr, energy, iters, snaps, peaks, bar)
+        else:
+            for n in range(1, n_steps + 1):
+                w_free, _v_free, G = track.begin_step(X[n])
+                delta, P, it = veh.step_with_contact(w_free, G, R[n], self.hertz, delta)
+                track.finish_step(P)
+                load[n], comp[n], iters[n] = P, delta, it
+                zw[n] = veh.u[wd]
+                wr[n] = w_free + G @ P
+                du = veh.u - u0
+                energy[n] = 0.5 * (veh.v @ M @ veh.v + du @ K @ du)
+                if n % self.snapshot_every == 0:
+                    snaps.append(self._take(track.snapshot()))
+                    self._merge_peaks(track, peaks)
+                if bar is not None and n % 200 == 0:
+                    bar.update(200)
         wall = time.perf_counter() - t_wall
         if bar is not None:
             bar.close()
@@ -454,6 +471,75 @@ class CoupledSimulation:
             t_out=t_out, sleeper_index=sidx, sleeper_x=sx, soil_force=sf, sleeper_rail_deflection=srd,
             newton_iterations=iters, wall_time=wall, peak_soil_force=pk, meta=meta,
         )
+
+    def _run_compiled(
+        self, track: Any, veh: VehicleNewmark, u0: Array, X: Array, R: Array, delta: Array,
+        load: Array, comp: Array, zw: Array, wr: Array, energy: Array, iters: NDArray[np.int64],
+        snaps: list[tuple[float, NDArray[np.int64], Array, Array, Array]], peaks: dict[int, float], bar: Any,
+    ) -> None:
+        """Steps 1 .. n_steps with the compiled coupled kernel, one call per stretch between window shifts.
+
+        The same scheme, window shifts, outputs and peak bookkeeping as the
+        per-step loop of :meth:`run` (``engine='stream-python'``): snapshots
+        every ``snapshot_every`` steps and the soil-force peaks merged at
+        snapshot steps.
+        """
+        from clm_core.stepper import CHUNK_STEPS
+        from clm_core.vehicle import _coupled_kernel
+
+        coupled_steps: Callable[..., tuple[int, int, int, float]] = _coupled_kernel.coupled_steps
+
+        tr = self.train
+        n_steps = X.shape[0] - 1
+        dt = self.dt
+        every = self.snapshot_every
+        tol, maxit = 1e-14, 50
+        f64 = np.float64
+        veh_args = (
+            veh._Kinv, veh._KinvB, veh.H, np.ascontiguousarray(tr.M, dtype=f64),
+            np.ascontiguousarray(tr.C, dtype=f64), np.ascontiguousarray(tr.K, dtype=f64),
+            np.ascontiguousarray(tr.gravity_force, dtype=f64), np.ascontiguousarray(tr.wheel_dof, dtype=np.int64),
+            veh.u, veh.v, veh.a, np.ascontiguousarray(u0, dtype=f64), dt,
+        )
+        X = np.ascontiguousarray(X, dtype=f64)
+        R = np.ascontiguousarray(R, dtype=f64)
+        ch = np.ascontiguousarray(self.hertz, dtype=f64)
+        N = int(track.n_sleepers)
+        cap = CHUNK_STEPS // every + 2
+        step_buf = np.empty(cap, dtype=np.int64)
+        pk_buf = np.empty(N)
+        n = 1
+        look = 64  # rows offered per call: about twice the last stretch between shifts (the search is O(rows))
+        while n <= n_steps:
+            m, targs = track.coupled_chunk(X[n : min(n_steps + 1, n + look)])
+            look = min(CHUNK_STEPS, 2 * m + 16)
+            sf_buf = np.empty((cap, N))
+            sr_buf = np.empty((cap, N))
+            e = n + m
+            done, ns, status, rn = coupled_steps(
+                *targs, *veh_args, R[n:e], ch, delta, tol, maxit,
+                load[n:e], comp[n:e], zw[n:e], wr[n:e], energy[n:e], iters[n:e],
+                n, every, sf_buf, sr_buf, step_buf, pk_buf,
+            )
+            if done:
+                track.coupled_commit(done, load[n + done - 1])
+            if ns:
+                first = int(track.window[0])
+                idx = np.arange(first, first + N, dtype=np.int64)
+                x = idx.astype(np.float64) * track.spacing
+                for k in range(ns):
+                    snaps.append((float(track._t0 + int(step_buf[k]) * track.dt), idx, x, sf_buf[k], sr_buf[k]))
+                for g, f in zip(idx.tolist(), pk_buf.tolist()):
+                    if f > peaks.get(g, -math.inf):
+                        peaks[g] = f
+            if bar is not None:
+                bar.update(done)
+            if status:
+                raise InputError(
+                    f"contact Newton iteration did not converge in {maxit} iterations (residual {rn:.3g} m); "
+                    "check the inputs for NaN or an excessive time step"
+                )
+            n += done
 
     def _stats_from(self, duration: float) -> float:
         """Start of the statistics window: after the lead-in, at least 0.05 s, at most a quarter of the run."""
