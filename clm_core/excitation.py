@@ -37,4 +37,4 @@ def decay_pulse(t: ArrayLike, A: float = 1.0, t0: float = 0.05, td: float = 0.00
 def decay_pulse_spectrum(f: ArrayLike, A: float = 1.0, t0: float = 0.05, td: float = 0.001) -> NDArray[np.complex128]:
     """Continuous Fourier transform of Eq. (1), convention exp(-j w t): A td e^{-j w t0} / (1 + j w td) [N s]."""
     w = 2 * np.pi * np.asarray(f, dtype=float)
-    return A * td * np.exp(-1j * w * t0) / (1 + 1j * w * td)
+    return np.asarray(A * td * np.exp(-1j * w * t0) / (1 + 1j * w * td), dtype=np.complex128)

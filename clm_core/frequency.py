@@ -139,4 +139,4 @@ def receptance_from_pulse(
     P = np.fft.rfft(p)
     freq = np.fft.rfftfreq(n_steps + 1, dt)
     keep = freq <= fmax
-    return Receptance(freq[keep], (X[keep] / P[keep, None]), int(system.sleeper_index[c]))
+    return Receptance(np.asarray(freq[keep], dtype=np.float64), (X[keep] / P[keep, None]), int(system.sleeper_index[c]))

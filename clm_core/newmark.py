@@ -75,9 +75,14 @@ class NewmarkLinear:
         u, v : (n_steps + 1, n) arrays [m], [m/s]
         """
         n = self.K.shape[0]
-        t = np.arange(n_steps + 1) * self.dt
+        t: Array = np.arange(n_steps + 1, dtype=np.float64) * self.dt
         F = force if isinstance(force, np.ndarray) else None
-        get = (lambda k: F[k]) if F is not None else (lambda k: force(t[k]))  # type: ignore[operator]
+
+        def get(k: int) -> Array:
+            if F is not None:
+                return np.asarray(F[k], dtype=np.float64)
+            return np.asarray(force(float(t[k])), dtype=np.float64)  # type: ignore[operator]
+
         u = np.empty((n_steps + 1, n))
         v = np.empty((n_steps + 1, n))
         self.u[:] = 0.0

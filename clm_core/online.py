@@ -229,8 +229,12 @@ class OnlineTrackModel:
 
     def _new_simulator(self, centre: float) -> TrackSimulator:
         return TrackSimulator(
-            self.params, self.dt, self.n_sleepers, self.elements_per_bay,
-            start_position=centre, lead_sleepers=self.lead_sleepers,
+            self.params,
+            self.dt,
+            self.n_sleepers,
+            self.elements_per_bay,
+            start_position=centre,
+            lead_sleepers=self.lead_sleepers,
         )
 
     # ------------------------------------------------------------------ validation
@@ -269,14 +273,14 @@ class OnlineTrackModel:
             )
         uniq, counts = np.unique(fr.ids, return_counts=True)
         if np.any(counts > 1):
-            raise Rejected(Reason.DUPLICATE_ID, f"wheel id {int(uniq[np.argmax(counts > 1)])} appears {counts.max()} times")
+            raise Rejected(
+                Reason.DUPLICATE_ID, f"wheel id {int(uniq[np.argmax(counts > 1)])} appears {counts.max()} times"
+            )
         known = self._fixed_set or self.last_stamp is not None
         if known and not self.accept_new_wheels:
             unknown = [int(i) for i in fr.ids if int(i) not in self._slot]
             if unknown:
-                raise Rejected(
-                    Reason.UNKNOWN_ID, f"wheel id(s) {unknown} not in the wheel set {sorted(self._slot)}"
-                )
+                raise Rejected(Reason.UNKNOWN_ID, f"wheel id(s) {unknown} not in the wheel set {sorted(self._slot)}")
         spread = float(fr.positions.max() - fr.positions.min())
         # one bay less than the nominal zone: the window moves by whole bays (TrackSimulator._required_first)
         allowed = (self.n_sleepers - 2 - self.sim.lead_sleepers - self.sim.margin_sleepers) * self.params.track.spacing

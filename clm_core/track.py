@@ -401,7 +401,7 @@ def assemble(
         rail_w=rail_w,
         rail_th=rail_th,
         sleeper_index=gidx,
-        sleeper_x=sx,
+        sleeper_x=np.asarray(sx, dtype=np.float64),
         sleeper_node=sleeper_node,
         sleeper_dof=sleeper_dof,
         area_dof=area_dof,

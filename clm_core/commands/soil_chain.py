@@ -94,13 +94,14 @@ def run(args: argparse.Namespace) -> int:
     )
     plot_chain(sums, eq16, eq18, resp, d / "chain.png", title=f"CLM chain, soil {args.soil} ({args.areas} areas)")
     amps, times = resp.peaks(2)
+    cs = _cs(args.soil)
     summary: dict[str, Any] = {
         "soil": soil.to_dict(),
         "areas": args.areas,
         "peak_displacement_m": amps,
         "peak_time_s": times,
         "measured_delay_s": [times[1] - times[0], times[2] - times[1]],
-        "eq21_delay_s": time_lag_mulliken(args.spacing, args.width, _cs(args.soil)) if _cs(args.soil) else None,
+        "eq21_delay_s": time_lag_mulliken(args.spacing, args.width, cs) if cs else None,
         "eq23_delay_s": time_lag_coupling(soil) if soil.kc > 0 else None,
         "eq22_low_frequency_delay_s": time_lag_transmissibility(soil) if soil.kc > 0 else None,
         "eq24_resonance_hz": resonance_frequency(soil) if soil.mf > 0 else None,

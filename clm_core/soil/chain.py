@@ -156,7 +156,7 @@ def chain_time_response(
     F = np.zeros((n_steps + 1, n_areas))
     F[:, n_areas // 2] = p
     _, x, v = NewmarkLinear(M, C, K, dt).run(F, n_steps)
-    return ChainTimeResponse(t, p, x, v)
+    return ChainTimeResponse(np.asarray(t, dtype=np.float64), p, x, v)
 
 
 def chain_damping_min_eigenvalue(soil: SoilParams, n_areas: int) -> float:

@@ -64,7 +64,7 @@ def static_stiffness_rectangle(length: float, width: float, E: float, nu: float)
             f"static_stiffness_rectangle: length = {length}, width = {width}, E = {E}, nu = {nu}: "
             "need positive sides and modulus, -1 < nu < 0.5"
         )
-    return E * b / (1.0 - nu**2) * (1.55 * (a / b) ** 0.75 + 0.8)
+    return float(E * b / (1.0 - nu**2) * (1.55 * (a / b) ** 0.75 + 0.8))
 
 
 def lysmer_from_soil(layer: SoilLayer, length: float, width: float) -> SoilParams:
@@ -145,4 +145,4 @@ def layer_resonances(thickness: float, c: float, n_max: int = 3) -> NDArray[np.f
     if thickness <= 0 or c <= 0:
         raise ParameterError(f"layer_resonances: thickness = {thickness}, c = {c}: both must be > 0")
     n = np.arange(1, n_max + 1)
-    return (2 * n - 1) * c / (4.0 * thickness)
+    return np.asarray((2 * n - 1) * c / (4.0 * thickness), dtype=np.float64)

@@ -28,11 +28,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from clm_core.errors import InputError, ParameterError
-from numba import njit
-
 from clm_core.vehicle.contact import fused_vehicle_contact_step, static_compression
 from clm_core.vehicle.coupled import CoupledSimulation
 from clm_core.vehicle.multibody import VehicleNewmark
@@ -42,10 +41,30 @@ Array = NDArray[np.float64]
 
 @njit(cache=True)
 def _sdof_vehicle_steps(
-    Kinv: Array, KinvB: Array, H: Array, M: Array, C: Array, grav: Array, wdof: NDArray[np.int64],
-    u: Array, v: Array, a: Array, dt: float, R: Array, ch: Array, delta: Array,
-    Mt: float, Ct: float, S: float, G: Array, w: Array, vw: Array, aw: Array, offset: Array,
-    tol: float, maxit: int,
+    Kinv: Array,
+    KinvB: Array,
+    H: Array,
+    M: Array,
+    C: Array,
+    grav: Array,
+    wdof: NDArray[np.int64],
+    u: Array,
+    v: Array,
+    a: Array,
+    dt: float,
+    R: Array,
+    ch: Array,
+    delta: Array,
+    Mt: float,
+    Ct: float,
+    S: float,
+    G: Array,
+    w: Array,
+    vw: Array,
+    aw: Array,
+    offset: Array,
+    tol: float,
+    maxit: int,
 ) -> tuple[Array, Array, int, float, int]:  # pragma: no cover - compiled
     """Several steps of vehicle + Hertz contact + per-wheel SDOF track predictor (state in place)."""
     n_w = w.shape[0]
@@ -57,7 +76,8 @@ def _sdof_vehicle_steps(
         rhs = Mt * (4.0 / dt**2 * w + 4.0 / dt * vw + aw) + Ct * (2.0 / dt * w + vw)
         w_free = rhs / S + offset
         delta, P, it, rn = fused_vehicle_contact_step(
-            Kinv, KinvB, H, M, C, grav, wdof, u, v, a, dt, w_free, G, R[i], ch, delta, tol, maxit)
+            Kinv, KinvB, H, M, C, grav, wdof, u, v, a, dt, w_free, G, R[i], ch, delta, tol, maxit
+        )
         worst = max(worst, rn)
         maxit_used = max(maxit_used, it)
         w_new = (rhs + P) / S
@@ -121,9 +141,31 @@ class StreamingVehicle:
         tr, veh = self.train, self.veh
         R = np.zeros((1, tr.n_wheels))
         _sdof_vehicle_steps(
-            veh._Kinv, veh._KinvB, veh.H, tr.M, tr.C, tr.gravity_force, tr.wheel_dof, veh.u.copy(), veh.v.copy(),
-            veh.a.copy(), self.dt, R, self.sim.hertz, self.delta.copy(), self.eq.Mt, self.eq.Ct, self._S, self.G,
-            self.w.copy(), self.v.copy(), self.a.copy(), self.offset.copy(), 1e-14, 50)
+            veh._Kinv,
+            veh._KinvB,
+            veh.H,
+            tr.M,
+            tr.C,
+            tr.gravity_force,
+            tr.wheel_dof,
+            veh.u.copy(),
+            veh.v.copy(),
+            veh.a.copy(),
+            self.dt,
+            R,
+            self.sim.hertz,
+            self.delta.copy(),
+            self.eq.Mt,
+            self.eq.Ct,
+            self._S,
+            self.G,
+            self.w.copy(),
+            self.v.copy(),
+            self.a.copy(),
+            self.offset.copy(),
+            1e-14,
+            50,
+        )
 
     @property
     def t(self) -> float:
@@ -173,14 +215,36 @@ class StreamingVehicle:
             raise ParameterError(f"n_steps = {n_steps}: must be >= 1")
         tr, dt = self.train, self.dt
         Mt, Ct = self.eq.Mt, self.eq.Ct
-        t = (self.k + 1 + np.arange(n_steps)) * dt
+        t = np.asarray((self.k + 1 + np.arange(n_steps)) * dt, dtype=np.float64)
         X = self.sim.wheel_positions(t)
         R = self.sim.irregularity.wheel_irregularity(X, self.x0, tr.wheel_radius)
         veh = self.veh
         self.delta, self.P, _, worst, lost = _sdof_vehicle_steps(
-            veh._Kinv, veh._KinvB, veh.H, tr.M, tr.C, tr.gravity_force, tr.wheel_dof, veh.u, veh.v, veh.a, dt,
-            np.ascontiguousarray(R), self.sim.hertz, np.ascontiguousarray(self.delta), Mt, Ct, self._S, self.G,
-            self.w, self.v, self.a, self.offset, 1e-14, 50)
+            veh._Kinv,
+            veh._KinvB,
+            veh.H,
+            tr.M,
+            tr.C,
+            tr.gravity_force,
+            tr.wheel_dof,
+            veh.u,
+            veh.v,
+            veh.a,
+            dt,
+            np.ascontiguousarray(R),
+            self.sim.hertz,
+            np.ascontiguousarray(self.delta),
+            Mt,
+            Ct,
+            self._S,
+            self.G,
+            self.w,
+            self.v,
+            self.a,
+            self.offset,
+            1e-14,
+            50,
+        )
         if not (worst <= 1e-14 and np.all(np.isfinite(self.P))):
             raise InputError(f"contact Newton iteration did not converge (residual {worst:.3g} m)")
         self.contact_lost_steps += int(lost)

@@ -13,12 +13,11 @@ from collections.abc import Iterable
 from typing import Any
 
 import rclpy
+from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
-from diagnostic_msgs.msg import DiagnosticArray
 
 QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -52,10 +51,16 @@ class Driver:
             self.spin(0.02)
 
     def wait_discovery(self, timeout: float = 20.0) -> None:
-        self.wait_for(lambda: self.pub.get_subscription_count() >= 1
-                      and self.node.count_publishers("sleeper_response") + self.node.count_publishers(
-                          self.pub.topic_name.replace("wheel_loads", "sleeper_response")) >= 1,
-                      timeout, "discovery of the track node")
+        self.wait_for(
+            lambda: (
+                self.pub.get_subscription_count() >= 1
+                and self.node.count_publishers("sleeper_response")
+                + self.node.count_publishers(self.pub.topic_name.replace("wheel_loads", "sleeper_response"))
+                >= 1
+            ),
+            timeout,
+            "discovery of the track node",
+        )
 
     def send(self, msgs: Iterable[Any], expected_answers: int, max_in_flight: int = 50, timeout: float = 60.0) -> None:
         """Publish ``msgs`` keeping at most ``max_in_flight`` unanswered; wait for ``expected_answers`` answers."""
@@ -69,8 +74,11 @@ class Driver:
             self.pub.publish(m)
             sent += 1
             self.spin(0)
-        self.wait_for(lambda: len(self.sleepers) - base >= expected_answers and len(self.wheels) - base_w >= expected_answers,
-                      timeout, f"{expected_answers} responses")
+        self.wait_for(
+            lambda: len(self.sleepers) - base >= expected_answers and len(self.wheels) - base_w >= expected_answers,
+            timeout,
+            f"{expected_answers} responses",
+        )
 
     def latest_diagnostics(self, timeout: float = 10.0) -> dict[str, str]:
         n = len(self.diagnostics)

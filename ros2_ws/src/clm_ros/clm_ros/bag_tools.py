@@ -74,8 +74,11 @@ class BagRecorder:
                 raise ClmRosError(f"topic {topic}: type {msgtype!r} unknown to the bag type store")
             conn = self.writer.add_connection(topic, msgtype, typestore=self.ts)
             self.counts[topic] = 0
-            self._subs.append(node.create_subscription(
-                message_class(msgtype), topic, self._callback(topic, conn), data_qos(), raw=True))
+            self._subs.append(
+                node.create_subscription(
+                    message_class(msgtype), topic, self._callback(topic, conn), data_qos(), raw=True
+                )
+            )
         self.closed = False
 
     def _callback(self, topic: str, conn: Any) -> Any:
@@ -149,7 +152,8 @@ def play_bag(
     ack_sub = None
     if rate == 0:
         ack_sub = node.create_subscription(
-            message_class(ack_type), ack_topic, lambda _m: acked.__setitem__(0, acked[0] + 1), data_qos())
+            message_class(ack_type), ack_topic, lambda _m: acked.__setitem__(0, acked[0] + 1), data_qos()
+        )
     sent: dict[str, int] = {}
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)

@@ -68,14 +68,19 @@ def rclpy_header(t_ns: int, frame_id: str) -> Any:
     return Header(stamp=Time(sec=t_ns // NS, nanosec=t_ns % NS), frame_id=frame_id)
 
 
-def rclpy_wheel_loads(t_ns: int, ids: Any, positions: Any, forces: Any, speeds: Any = None, frame_id: str = "track") -> Any:
+def rclpy_wheel_loads(
+    t_ns: int, ids: Any, positions: Any, forces: Any, speeds: Any = None, frame_id: str = "track"
+) -> Any:
     """Build a ``clm_msgs/WheelLoads`` (rclpy)."""
     from clm_msgs.msg import WheelLoad, WheelLoads
 
     sp = [float("nan")] * len(ids) if speeds is None else speeds
     return WheelLoads(
         header=rclpy_header(t_ns, frame_id),
-        wheels=[WheelLoad(id=int(i), position=float(p), force=float(f), speed=float(v)) for i, p, f, v in zip(ids, positions, forces, sp)],
+        wheels=[
+            WheelLoad(id=int(i), position=float(p), force=float(f), speed=float(v))
+            for i, p, f, v in zip(ids, positions, forces, sp)
+        ],
     )
 
 
@@ -102,14 +107,19 @@ def _rb_header(ts: Any, t_ns: int, frame_id: str) -> Any:
     return Header(stamp=Time(sec=t_ns // NS, nanosec=t_ns % NS), frame_id=frame_id)
 
 
-def rosbags_wheel_loads(ts: Any, t_ns: int, ids: Any, positions: Any, forces: Any, speeds: Any = None, frame_id: str = "track") -> Any:
+def rosbags_wheel_loads(
+    ts: Any, t_ns: int, ids: Any, positions: Any, forces: Any, speeds: Any = None, frame_id: str = "track"
+) -> Any:
     """Build a ``clm_msgs/WheelLoads`` rosbags dataclass."""
     WheelLoad = ts.types["clm_msgs/msg/WheelLoad"]
     WheelLoads = ts.types["clm_msgs/msg/WheelLoads"]
     sp = [float("nan")] * len(ids) if speeds is None else speeds
     return WheelLoads(
         header=_rb_header(ts, t_ns, frame_id),
-        wheels=[WheelLoad(id=int(i), position=float(p), force=float(f), speed=float(v)) for i, p, f, v in zip(ids, positions, forces, sp)],
+        wheels=[
+            WheelLoad(id=int(i), position=float(p), force=float(f), speed=float(v))
+            for i, p, f, v in zip(ids, positions, forces, sp)
+        ],
     )
 
 

@@ -25,7 +25,6 @@ import random
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -95,20 +94,39 @@ def run_demo(
     dom = domain_id if domain_id is not None else random.randrange(100, 200)
     env = ros_env(dom)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    track_params = {"track": track, "soil": soil, "model": model, "dt": dt, "n_sleepers": n_sleepers,
-                    "diagnostics_period": 0.5}
-    vehicle_params = {"vehicle": vehicle, "speed": float(speed), "duration": float(duration), "rate": float(rate_hz),
-                      "irregularity": irregularity, "seed": int(seed), "closed_loop": closed_loop, "track": track,
-                      "soil": soil, "model": model, "wait_for_subscribers": 2}
-    logs = {name: open(out / f"{name}.log", "w") for name in ("track_node", "vehicle_node")}  # noqa: SIM115
+    track_params = {
+        "track": track,
+        "soil": soil,
+        "model": model,
+        "dt": dt,
+        "n_sleepers": n_sleepers,
+        "diagnostics_period": 0.5,
+    }
+    vehicle_params = {
+        "vehicle": vehicle,
+        "speed": float(speed),
+        "duration": float(duration),
+        "rate": float(rate_hz),
+        "irregularity": irregularity,
+        "seed": int(seed),
+        "closed_loop": closed_loop,
+        "track": track,
+        "soil": soil,
+        "model": model,
+        "wait_for_subscribers": 2,
+    }
+    logs = {name: open(out / f"{name}.log", "w") for name in ("track_node", "vehicle_node")}
     procs: dict[str, subprocess.Popen[bytes]] = {}
     ctx = Context()
     rclpy.init(context=ctx, domain_id=dom)
     summary: dict[str, Any] = {}
     try:
         procs["track_node"] = subprocess.Popen(
-            [sys.executable, "-m", "clm_ros.track_node", *_ros_args(track_params)], env=env,
-            stdout=logs["track_node"], stderr=subprocess.STDOUT)
+            [sys.executable, "-m", "clm_ros.track_node", *_ros_args(track_params)],
+            env=env,
+            stdout=logs["track_node"],
+            stderr=subprocess.STDOUT,
+        )
         node = rclpy.create_node("clm_demo_recorder", context=ctx)
         # the recorder takes ~3 messages per ms: the events executor keeps up where
         # the single-threaded one (~1k callbacks/s) would back-pressure the nodes
@@ -119,19 +137,27 @@ def run_demo(
             end = time.monotonic() + seconds
             while (left := end - time.monotonic()) > 0:
                 ex.spin_once(timeout_sec=left)
+
         rec = BagRecorder(node, bag, TOPICS, storage=storage)
         procs["vehicle_node"] = subprocess.Popen(
-            [sys.executable, "-m", "clm_ros.vehicle_node", *_ros_args(vehicle_params)], env=env,
-            stdout=logs["vehicle_node"], stderr=subprocess.STDOUT)
+            [sys.executable, "-m", "clm_ros.vehicle_node", *_ros_args(vehicle_params)],
+            env=env,
+            stdout=logs["vehicle_node"],
+            stderr=subprocess.STDOUT,
+        )
         t0 = time.monotonic()
         while procs["vehicle_node"].poll() is None:
             spin_for(0.05)
             if procs["track_node"].poll() is not None:
-                raise ClmRosError(f"track node exited early with code {procs['track_node'].returncode}; see {out}/track_node.log")
+                raise ClmRosError(
+                    f"track node exited early with code {procs['track_node'].returncode}; see {out}/track_node.log"
+                )
             if time.monotonic() - t0 > timeout:
                 raise ClmRosError(f"vehicle node still running after {timeout:g} s; see {out}/vehicle_node.log")
         if procs["vehicle_node"].returncode != 0:
-            raise ClmRosError(f"vehicle node failed with code {procs['vehicle_node'].returncode}; see {out}/vehicle_node.log")
+            raise ClmRosError(
+                f"vehicle node failed with code {procs['vehicle_node'].returncode}; see {out}/vehicle_node.log"
+            )
         # every wheel-load message answered (or rejected and counted)
         t1 = time.monotonic()
         while rec.counts["/sleeper_response"] < rec.counts["/wheel_loads"] and time.monotonic() - t1 < 60:
@@ -156,10 +182,24 @@ def run_demo(
             f.close()
         rclpy.try_shutdown(context=ctx)
     summary.update(analyse_bag(bag, out))
-    summary.update({"vehicle": vehicle, "speed_m_per_s": speed, "duration_s": duration, "track": track,
-                    "soil": soil, "model": model, "rate_hz": rate_hz, "dt_s": dt, "n_sleepers": n_sleepers,
-                    "irregularity": irregularity, "seed": seed, "closed_loop": closed_loop, "bag": str(bag),
-                    "ros_domain_id": dom})
+    summary.update(
+        {
+            "vehicle": vehicle,
+            "speed_m_per_s": speed,
+            "duration_s": duration,
+            "track": track,
+            "soil": soil,
+            "model": model,
+            "rate_hz": rate_hz,
+            "dt_s": dt,
+            "n_sleepers": n_sleepers,
+            "irregularity": irregularity,
+            "seed": seed,
+            "closed_loop": closed_loop,
+            "bag": str(bag),
+            "ros_domain_id": dom,
+        }
+    )
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
@@ -229,9 +269,19 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     }
 
 
-def _plot_demo(out: Any, s_t: np.ndarray, t0: int, grid: np.ndarray, gmin: int, s_x: list[np.ndarray],
-               s_F: list[np.ndarray], s_w: list[np.ndarray], peak_k: int, wheel_t: list[int],
-               wheel_F: list[np.ndarray]) -> None:
+def _plot_demo(
+    out: Any,
+    s_t: np.ndarray,
+    t0: int,
+    grid: np.ndarray,
+    gmin: int,
+    s_x: list[np.ndarray],
+    s_F: list[np.ndarray],
+    s_w: list[np.ndarray],
+    peak_k: int,
+    wheel_t: list[int],
+    wheel_F: list[np.ndarray],
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -258,8 +308,13 @@ def _plot_demo(out: Any, s_t: np.ndarray, t0: int, grid: np.ndarray, gmin: int, 
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(9, 4.5))
     ax.plot(s_x[peak_k], s_w[peak_k] * 1e3, "o-", ms=3, label="rail above sleepers")
-    ax.plot(s_x[peak_k], s_F[peak_k] / s_F[peak_k].max() * s_w[peak_k].max() * 1e3, "--", alpha=0.6,
-            label="soil force (scaled)")
+    ax.plot(
+        s_x[peak_k],
+        s_F[peak_k] / s_F[peak_k].max() * s_w[peak_k].max() * 1e3,
+        "--",
+        alpha=0.6,
+        label="soil force (scaled)",
+    )
     ax.invert_yaxis()
     ax.set_xlabel("position along the line [m]")
     ax.set_ylabel("rail deflection [mm] (downwards)")

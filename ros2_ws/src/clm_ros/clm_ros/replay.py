@@ -105,9 +105,13 @@ def replay_bag(
         conns = [c for c in reader.connections if c.msgtype == WHEEL_LOADS and (topic is None or c.topic == topic)]
         if not conns:
             have = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
-            raise ClmRosError(f"bag {str(in_bag)!r}: no {WHEEL_LOADS} topic{f' {topic!r}' if topic else ''}; has {have}")
+            raise ClmRosError(
+                f"bag {str(in_bag)!r}: no {WHEEL_LOADS} topic{f' {topic!r}' if topic else ''}; has {have}"
+            )
         if len({c.topic for c in conns}) > 1:
-            raise ClmRosError(f"bag {str(in_bag)!r}: several wheel-load topics {sorted({c.topic for c in conns})}; pass topic=")
+            raise ClmRosError(
+                f"bag {str(in_bag)!r}: several wheel-load topics {sorted({c.topic for c in conns})}; pass topic="
+            )
         in_topic = conns[0].topic
         writer = Writer(out, version=8, storage_plugin=storage_plugin(storage))
         with writer:
@@ -122,7 +126,9 @@ def replay_bag(
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except Exception as exc:
-                    raise ClmRosError(f"bag {str(in_bag)!r}: message {stats.read} on {in_topic} cannot be decoded ({exc})") from None
+                    raise ClmRosError(
+                        f"bag {str(in_bag)!r}: message {stats.read} on {in_topic} cannot be decoded ({exc})"
+                    ) from None
                 before = model.sim.t
                 try:
                     resp = model.process(frame_from_msg(msg))

@@ -29,11 +29,12 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from clm_core.errors import ClmError
@@ -44,16 +45,15 @@ from clm_core.params import (
     ModelParams,
     load_model,
     load_params_file,
-    parameter_values,
 )
-from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
 from clm_ros.conversions import frame_from_msg, rclpy_responses, stamp_ns
 
 NODE_NAME = "clm_track_node"
 
 
-def _desc(text: str, read_only: bool = False, frange: tuple[float, float] | None = None,
-          irange: tuple[int, int] | None = None) -> ParameterDescriptor:
+def _desc(
+    text: str, read_only: bool = False, frange: tuple[float, float] | None = None, irange: tuple[int, int] | None = None
+) -> ParameterDescriptor:
     d = ParameterDescriptor(description=text, read_only=read_only)
     if frange is not None:
         d.floating_point_range = [FloatingPointRange(from_value=frange[0], to_value=frange[1], step=0.0)]
@@ -80,19 +80,39 @@ class TrackNode(LifecycleNode):
         dp("track", "mevergnies", _desc("track preset or YAML file (rail + track)", read_only=True))
         dp("soil", "mevergnies", _desc("soil preset or YAML file", read_only=True))
         dp("model", "clm", _desc(f"foundation model: {', '.join(SOIL_MODELS)}", read_only=True))
-        dp("params_file", "", _desc("full parameter file (rail, track, soil, overrides); replaces track/soil/model",
-                                    read_only=True))
+        dp(
+            "params_file",
+            "",
+            _desc("full parameter file (rail, track, soil, overrides); replaces track/soil/model", read_only=True),
+        )
         dp("dt", 1.0e-4, _desc("integration time step [s]", read_only=True, frange=(1e-6, 1e-2)))
         dp("n_sleepers", 61, _desc("sleepers in the simulated window [-]", read_only=True, irange=(11, 4001)))
         dp("elements_per_bay", 2, _desc("rail elements per sleeper bay [-]", read_only=True, irange=(1, 16)))
-        dp("lead_sleepers", -1, _desc("sleepers kept ahead of the foremost wheel; -1: a third of the window",
-                                      read_only=True, irange=(-1, 4000)))
+        dp(
+            "lead_sleepers",
+            -1,
+            _desc(
+                "sleepers kept ahead of the foremost wheel; -1: a third of the window",
+                read_only=True,
+                irange=(-1, 4000),
+            ),
+        )
         dp("max_gap", 1.0, _desc("a stamp gap above this re-synchronises the state [s]", frange=(1e-4, 1e6)))
         dp("accept_new_wheels", False, _desc("accept wheel ids not in the first message (wheels entering)"))
-        dp("publish_every", 1, _desc("publish the response of every N-th accepted message [-] (1: all)",
-                                     irange=(1, 100000)))
-        dp("qos_depth", 0, _desc("keep-last depth of the data topics [-]; 0: keep all (no message dropped)",
-                                  read_only=True, irange=(0, 100000)))
+        dp(
+            "publish_every",
+            1,
+            _desc("publish the response of every N-th accepted message [-] (1: all)", irange=(1, 100000)),
+        )
+        dp(
+            "qos_depth",
+            0,
+            _desc(
+                "keep-last depth of the data topics [-]; 0: keep all (no message dropped)",
+                read_only=True,
+                irange=(0, 100000),
+            ),
+        )
         dp("qos_reliability", "reliable", _desc("reliable or best_effort", read_only=True))
         dp("frame_id", "track", _desc("frame id of the output headers"))
         dp("diagnostics_period", 1.0, _desc("period of /diagnostics [s]", read_only=True, frange=(0.01, 3600.0)))
@@ -145,6 +165,7 @@ class TrackNode(LifecycleNode):
 
     def build_model(self, params: ModelParams, changes: dict[str, Any] | None = None) -> OnlineTrackModel:
         """The online model (builds and factorises the simulator: refuses unstable sets)."""
+
         def get(key: str) -> Any:
             return changes[key] if changes and key in changes else self.get_parameter(key).value
 
@@ -192,13 +213,16 @@ class TrackNode(LifecycleNode):
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._qos = qos
         self.get_logger().info(
-            f"configured: {params.name or 'parameter file'}, dt = {self.model.dt:g} s, window {self.model.n_sleepers} sleepers"
+            f"configured: {params.name or 'parameter file'}, dt = {self.model.dt:g} s, "
+            f"window {self.model.n_sleepers} sleepers"
         )
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:
         self._sub = self.create_subscription(WheelLoads, "wheel_loads", self._on_wheel_loads, self._qos)
-        self._timer = self.create_timer(float(self.get_parameter("diagnostics_period").value), self._publish_diagnostics)
+        self._timer = self.create_timer(
+            float(self.get_parameter("diagnostics_period").value), self._publish_diagnostics
+        )
         return super().on_activate(state)
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
@@ -235,7 +259,9 @@ class TrackNode(LifecycleNode):
             cause = exc.reason.value
             if cause not in self._logged:
                 self._logged.add(cause)
-                self.get_logger().warning(f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): {exc}")
+                self.get_logger().warning(
+                    f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): {exc}"
+                )
             return
         self._proc_wall += time.perf_counter() - w0
         if not resp.resynced:
@@ -279,9 +305,13 @@ class TrackNode(LifecycleNode):
             level, message = DiagnosticStatus.WARN, f"{st.rejected_total} message(s) rejected"
         if 0 < rtf < 1.0:
             level, message = DiagnosticStatus.WARN, f"slower than real time (RTF {rtf:.2f})"
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: track-soil model", message=message,
-                                  hardware_id="clm_core",
-                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        status = DiagnosticStatus(
+            level=level,
+            name=f"{self.get_name()}: track-soil model",
+            message=message,
+            hardware_id="clm_core",
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
+        )
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()
         self._pub_diag.publish(arr)
@@ -289,8 +319,12 @@ class TrackNode(LifecycleNode):
     def stats(self) -> dict[str, Any]:
         """Counters (for tests and the launcher)."""
         st = self.model.stats if self.model else None
-        return {"received": self._received, "published": self._published,
-                "accepted": st.accepted if st else 0, "rejected": dict(st.rejected) if st else {}}
+        return {
+            "received": self._received,
+            "published": self._published,
+            "accepted": st.accepted if st else 0,
+            "rejected": dict(st.rejected) if st else {},
+        }
 
 
 def main(args: list[str] | None = None) -> int:

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from clm_msgs.msg import WheelLoads, WheelRailResponse
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -36,14 +37,15 @@ from clm_core.errors import ClmError
 from clm_core.params import SOIL_MODELS, load_model, load_params_file
 from clm_core.vehicle.cli_support import build_run
 from clm_core.vehicle.streaming import StreamingVehicle
-from clm_msgs.msg import WheelLoads, WheelRailResponse
 from clm_ros.conversions import rclpy_wheel_loads, stamp_ns
 
 NODE_NAME = "clm_vehicle_node"
 NS = 1_000_000_000
 
 
-def _desc(text: str, frange: tuple[float, float] | None = None, irange: tuple[int, int] | None = None) -> ParameterDescriptor:
+def _desc(
+    text: str, frange: tuple[float, float] | None = None, irange: tuple[int, int] | None = None
+) -> ParameterDescriptor:
     d = ParameterDescriptor(description=text, read_only=True)
     if frange:
         d.floating_point_range = [FloatingPointRange(from_value=frange[0], to_value=frange[1], step=0.0)]
@@ -74,20 +76,40 @@ class VehicleNode(Node):
         dp("params_file", "", _desc("full parameter file (replaces track/soil/model)"))
         dp("closed_loop", True, _desc("use the track node's rail deflection under the wheels"))
         dp("publish_clock", False, _desc("publish /clock and stamp with simulation time from 0"))
-        dp("wait_for_subscribers", 1, _desc("subscribers of wheel_loads to wait for before starting [-]",
-                                            irange=(0, 100)))
+        dp(
+            "wait_for_subscribers",
+            1,
+            _desc("subscribers of wheel_loads to wait for before starting [-]", irange=(0, 100)),
+        )
         dp("discovery_timeout", 30.0, _desc("how long to wait for them [s]", frange=(0.0, 3600.0)))
-        dp("ack_timeout", 10.0, _desc("after the run, wait this long for the track's answers [s]",
-                                      frange=(0.0, 3600.0)))
+        dp(
+            "ack_timeout",
+            10.0,
+            _desc("after the run, wait this long for the track's answers [s]", frange=(0.0, 3600.0)),
+        )
         dp("frame_id", "track", _desc("frame id of the headers"))
-        dp("max_feedback_delay", 0.02, _desc("closed loop: ignore track answers older than this [s] (counted)",
-                                              frange=(0.0, 10.0)))
+        dp(
+            "max_feedback_delay",
+            0.02,
+            _desc("closed loop: ignore track answers older than this [s] (counted)", frange=(0.0, 10.0)),
+        )
         g = lambda n: self.get_parameter(n).value  # noqa: E731
-        params = load_params_file(g("params_file")) if g("params_file") else load_model(g("track"), g("soil"), g("model"))
-        ns = argparse.Namespace(vehicle=g("vehicle"), cars=int(g("cars")), speed=float(g("speed")),
-                                duration=float(g("duration")), dt=float(g("dt")), start=float(g("start")),
-                                irregularity=g("irregularity"), seed=int(g("seed")), wavelength_band=g("wavelength_band"),
-                                defect=[], train=None)
+        params = (
+            load_params_file(g("params_file")) if g("params_file") else load_model(g("track"), g("soil"), g("model"))
+        )
+        ns = argparse.Namespace(
+            vehicle=g("vehicle"),
+            cars=int(g("cars")),
+            speed=float(g("speed")),
+            duration=float(g("duration")),
+            dt=float(g("dt")),
+            start=float(g("start")),
+            irregularity=g("irregularity"),
+            seed=int(g("seed")),
+            wavelength_band=g("wavelength_band"),
+            defect=[],
+            train=None,
+        )
         sim, duration, self.settings = build_run(ns, params)
         rate = float(g("rate"))
         sub = 1.0 / (rate * sim.dt)
@@ -139,7 +161,8 @@ class VehicleNode(Node):
         while self.pub.get_subscription_count() < int(g("wait_for_subscribers")):
             if time.monotonic() - t0 > float(g("discovery_timeout")):
                 self.get_logger().error(
-                    f"no {g('wait_for_subscribers')} subscriber(s) on wheel_loads after {g('discovery_timeout')} s")
+                    f"no {g('wait_for_subscribers')} subscriber(s) on wheel_loads after {g('discovery_timeout')} s"
+                )
                 return 3
             executor.spin_once(timeout_sec=0.02)
         # answers are taken by the executor in a thread of their own; this loop only
@@ -168,7 +191,9 @@ class VehicleNode(Node):
             x = self.vehicle.positions()
             with self.lock:
                 self.sent[t_ns] = self.vehicle.k
-            self.pub.publish(rclpy_wheel_loads(t_ns, self.ids, x, P, np.full(self.ids.size, self.vehicle.sim.speed), frame))
+            self.pub.publish(
+                rclpy_wheel_loads(t_ns, self.ids, x, P, np.full(self.ids.size, self.vehicle.sim.speed), frame)
+            )
         t1 = time.monotonic()
         while self.answered < self.n_messages + 1 and time.monotonic() - t1 < float(g("ack_timeout")):
             time.sleep(0.01)

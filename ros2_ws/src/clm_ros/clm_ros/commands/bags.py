@@ -11,9 +11,11 @@ from typing import Any
 
 def register(sub: Any) -> None:
     """Add the ``record`` and ``play`` sub-commands."""
-    r = sub.add_parser("record", help="record topics to a rosbag2 bag (mcap or sqlite3)",
-                       description="Raw subscriptions (reliable, keep-all) written to a bag until Ctrl-C, "
-                       "--duration or --count.")
+    r = sub.add_parser(
+        "record",
+        help="record topics to a rosbag2 bag (mcap or sqlite3)",
+        description="Raw subscriptions (reliable, keep-all) written to a bag until Ctrl-C, --duration or --count.",
+    )
     r.add_argument("topics", nargs="+", help="TOPIC or TOPIC:TYPE (type default: discovered on the graph)")
     r.add_argument("--out", required=True, help="output bag directory (must not exist)")
     r.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])

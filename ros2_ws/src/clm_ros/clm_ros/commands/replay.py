@@ -13,7 +13,8 @@ from clm_core.commands._common import add_model_arguments, model_from_args
 def register(sub: Any) -> None:
     """Add the ``replay`` sub-command."""
     p = sub.add_parser(
-        "replay", help="run a wheel-load bag through the track model offline, write the responses as a bag",
+        "replay",
+        help="run a wheel-load bag through the track model offline, write the responses as a bag",
         description="Reads clm_msgs/WheelLoads from IN_BAG (mcap or sqlite3), runs them through the same "
         "code as the track node (no middleware, faster than real time) and writes OUT_BAG with the inputs "
         "and the sleeper and wheel-rail responses.",
@@ -37,24 +38,46 @@ def run(args: argparse.Namespace) -> int:
     from clm_ros.replay import replay_bag
 
     params = model_from_args(args)
-    model = OnlineTrackModel(params, dt=args.dt, n_sleepers=args.sleepers, elements_per_bay=args.elements_per_bay,
-                             max_gap=args.max_gap, accept_new_wheels=args.accept_new_wheels,
-                             lead_sleepers=args.lead_sleepers)
+    model = OnlineTrackModel(
+        params,
+        dt=args.dt,
+        n_sleepers=args.sleepers,
+        elements_per_bay=args.elements_per_bay,
+        max_gap=args.max_gap,
+        accept_new_wheels=args.accept_new_wheels,
+        lead_sleepers=args.lead_sleepers,
+    )
     bar: Any = None
     if sys.stderr.isatty():
         from tqdm import tqdm
 
         bar = tqdm(unit="msg", desc="replay")
     try:
-        stats = replay_bag(args.in_bag, args.out, model, topic=args.topic, storage=args.storage,
-                           progress=(lambda n: bar.update(1)) if bar else None)
+        stats = replay_bag(
+            args.in_bag,
+            args.out,
+            model,
+            topic=args.topic,
+            storage=args.storage,
+            progress=(lambda n: bar.update(1)) if bar else None,
+        )
     except ClmRosError as exc:
         print(f"clm replay: error: {exc}", file=sys.stderr)
         return 2
     finally:
         if bar is not None:
             bar.close()
-    print(json.dumps({"read": stats.read, "accepted": stats.accepted, "written": stats.written,
-                      "rejected": dict(stats.rejected), "sim_time_s": stats.sim_time_s,
-                      "wall_time_s": stats.wall_time_s, "real_time_factor": stats.real_time_factor}))
+    print(
+        json.dumps(
+            {
+                "read": stats.read,
+                "accepted": stats.accepted,
+                "written": stats.written,
+                "rejected": dict(stats.rejected),
+                "sim_time_s": stats.sim_time_s,
+                "wall_time_s": stats.wall_time_s,
+                "real_time_factor": stats.real_time_factor,
+            }
+        )
+    )
     return 0
