@@ -13,12 +13,12 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
+from clm_ros.conversions import rosbags_wheel_loads
+from clm_ros.msg_types import typestore
+from clm_ros.replay import open_reader
+from rosbags.rosbag2 import StoragePlugin, Writer
 
-from clm_core.cli import main as clm  # noqa: E402
-from clm_ros.conversions import rosbags_wheel_loads  # noqa: E402
-from clm_ros.msg_types import typestore  # noqa: E402
-from clm_ros.replay import open_reader  # noqa: E402
+from clm_core.cli import main as clm
 
 NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
 N = 300
@@ -51,9 +51,8 @@ def _responses(path, topic: str = "/sleeper_response") -> list[tuple[int, np.nda
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_record_replay_offline_identical(ros_python, ros_domain_id, tmp_path, storage, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     import rclpy
-    from rclpy.context import Context
-
     from clm_ros.bag_tools import BagRecorder, play_bag
+    from rclpy.context import Context
 
     src = tmp_path / "wheels"
     _write_wheel_bag(src, storage)

@@ -9,18 +9,17 @@
 from __future__ import annotations
 
 import math
-import sys
 
 import numpy as np
 import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from clm_core.online import OnlineTrackModel, Rejected, WheelFrame  # noqa: E402
-from clm_core.params import load_model  # noqa: E402
-from clm_ros.conversions import rclpy_wheel_loads  # noqa: E402
+from clm_ros.conversions import rclpy_wheel_loads
+from driver import Driver
 
-from driver import Driver  # noqa: E402
+from clm_core.online import OnlineTrackModel, Rejected, WheelFrame
+from clm_core.params import load_model
 
 NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
 NS = 10**9
