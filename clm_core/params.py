@@ -44,28 +44,9 @@ SOIL_USED: Mapping[str, tuple[str, ...]] = {
 }
 
 
-def _check_finite(name: str, value: Any) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {value!r}: must be a real number") from None
-    if not math.isfinite(v):
-        raise ParameterError(f"{name} = {v}: must be finite (no NaN or infinity)")
-    return v
-
-
-def _check_positive(name: str, value: Any) -> float:
-    v = _check_finite(name, value)
-    if v <= 0.0:
-        raise ParameterError(f"{name} = {v:g}: must be > 0")
-    return v
-
-
-def _check_nonnegative(name: str, value: Any) -> float:
-    v = _check_finite(name, value)
-    if v < 0.0:
-        raise ParameterError(f"{name} = {v:g}: must be >= 0")
-    return v
+from clm_core.checks import finite as _check_finite  # noqa: E402
+from clm_core.checks import nonnegative as _check_nonnegative  # noqa: E402
+from clm_core.checks import positive as _check_positive  # noqa: E402
 
 
 @dataclass(frozen=True)

@@ -56,14 +56,7 @@ __all__ = ["Layer", "SoilProfile", "list_soil_presets", "load_profile", "profile
 SPEED_TOLERANCE = 0.05
 
 
-def _finite(name: str, value: Any) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {value!r}: must be a real number") from None
-    if not math.isfinite(v):
-        raise ParameterError(f"{name} = {v}: must be finite")
-    return v
+from clm_core.checks import finite as _finite  # noqa: E402
 
 
 @dataclass(frozen=True)

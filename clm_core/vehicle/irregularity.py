@@ -412,22 +412,8 @@ class WheelFlat:
         return np.asarray(np.where(inside, out, 0.0), dtype=float)
 
 
-def _fin(name: str, v: float | str) -> float:
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {v!r}: must be a real number") from None
-    if not math.isfinite(f):
-        raise ParameterError(f"{name} = {f}: must be finite (no NaN or infinity)")
-    return f
-
-
-def _posv(name: str, v: float) -> float:
-    f = _fin(name, v)
-    if f <= 0:
-        raise ParameterError(f"{name} = {f:g}: must be > 0")
-    return f
-
+from clm_core.checks import finite as _fin  # noqa: E402
+from clm_core.checks import positive as _posv  # noqa: E402
 
 RailDefect = DippedJoint | JointStep
 
@@ -551,8 +537,11 @@ def parse_defect(text: str) -> DippedJoint | JointStep | WheelFlat | dict[str, f
         if w != int(w):
             raise ParameterError(f"--defect {text!r}: wheel = {w}: must be an integer index")
         return WheelFlat(
-            wheel=int(w), x=num("x"), length=num("length"),
-            depth=num("depth") if "depth" in vals else None, shape=shape,  # type: ignore[arg-type]
+            wheel=int(w),
+            x=num("x"),
+            length=num("length"),
+            depth=num("depth") if "depth" in vals else None,
+            shape=shape,  # type: ignore[arg-type]
         )
     if kind == "stiffness":
         only(("from", "to", *PER_SLEEPER_NAMES))
@@ -562,9 +551,7 @@ def parse_defect(text: str) -> DippedJoint | JointStep | WheelFlat | dict[str, f
         if len(out) == 2:
             raise ParameterError(f"--defect {text!r}: name at least one of {', '.join(PER_SLEEPER_NAMES)}")
         return out
-    raise ParameterError(
-        f"--defect kind {kind!r}: unknown; one of dipped-joint, joint-step, wheel-flat, stiffness"
-    )
+    raise ParameterError(f"--defect kind {kind!r}: unknown; one of dipped-joint, joint-step, wheel-flat, stiffness")
 
 
 def local_stiffness_change(
@@ -601,8 +588,10 @@ def local_stiffness_change(
     if i1 < i0:
         raise ParameterError(f"local stiffness change [{a:g}, {b:g}] m: contains no sleeper (spacing {d:g} m)")
     new: dict[str, float] = {}
-    base = {**{n: getattr(params.track, n) for n in ("kp", "dp", "ms", "kb", "db")},
-            **{n: getattr(params.soil, n) for n in ("mf", "kf", "df", "kc", "dc")}}
+    base = {
+        **{n: getattr(params.track, n) for n in ("kp", "dp", "ms", "kb", "db")},
+        **{n: getattr(params.soil, n) for n in ("mf", "kf", "df", "kc", "dc")},
+    }
     for name, v in (values or {}).items():
         if name not in PER_SLEEPER_NAMES:
             raise ParameterError(
@@ -622,7 +611,18 @@ def local_stiffness_change(
 
 
 __all__ = [
-    "FRA_CLASSES", "GERMAN_LEVELS", "SPECTRA", "DippedJoint", "Irregularity", "JointStep", "Profile",
-    "WheelFlat", "band_variance", "load_profile_csv", "local_stiffness_change", "parse_defect", "psd",
+    "FRA_CLASSES",
+    "GERMAN_LEVELS",
+    "SPECTRA",
+    "DippedJoint",
+    "Irregularity",
+    "JointStep",
+    "Profile",
+    "WheelFlat",
+    "band_variance",
+    "load_profile_csv",
+    "local_stiffness_change",
+    "parse_defect",
+    "psd",
     "random_profile",
 ]

@@ -48,28 +48,9 @@ IntArray = NDArray[np.int64]
 GRAVITY = 9.81
 
 
-def _finite(name: str, value: Any) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {value!r}: must be a real number") from None
-    if not math.isfinite(v):
-        raise ParameterError(f"{name} = {v}: must be finite (no NaN or infinity)")
-    return v
-
-
-def _positive(name: str, value: Any) -> float:
-    v = _finite(name, value)
-    if v <= 0.0:
-        raise ParameterError(f"{name} = {v:g}: must be > 0")
-    return v
-
-
-def _nonnegative(name: str, value: Any) -> float:
-    v = _finite(name, value)
-    if v < 0.0:
-        raise ParameterError(f"{name} = {v:g}: must be >= 0")
-    return v
+from clm_core.checks import finite as _finite  # noqa: E402
+from clm_core.checks import nonnegative as _nonnegative  # noqa: E402
+from clm_core.checks import positive as _positive  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -140,9 +121,19 @@ class VehicleType:
         if not isinstance(self.name, str) or not self.name:
             raise ParameterError(f"vehicle.name = {self.name!r}: must be a non-empty string")
         p = f"vehicle {self.name!r}"
-        for n in ("body_mass", "body_pitch_inertia", "bogie_mass", "bogie_pitch_inertia", "wheelset_mass",
-                  "wheel_radius", "primary_stiffness", "secondary_stiffness", "bogie_spacing",
-                  "axle_spacing", "length"):
+        for n in (
+            "body_mass",
+            "body_pitch_inertia",
+            "bogie_mass",
+            "bogie_pitch_inertia",
+            "wheelset_mass",
+            "wheel_radius",
+            "primary_stiffness",
+            "secondary_stiffness",
+            "bogie_spacing",
+            "axle_spacing",
+            "length",
+        ):
             object.__setattr__(self, n, _positive(f"{p}: {n}", getattr(self, n)))
         for n in ("primary_damping", "secondary_damping"):
             object.__setattr__(self, n, _nonnegative(f"{p}: {n}", getattr(self, n)))
@@ -437,10 +428,21 @@ def build_train(cars: Sequence[CarSpec | VehicleType]) -> Train:
 
     x0 = wheel_x[0]
     return Train(
-        cars=specs, M=M, C=C, K=K, gravity_force=grav, wheel_dof=wheel_dof,
-        wheel_offset=wheel_x - x0, wheel_radius=wheel_r, hertz_constant=wheel_ch,
-        wheel_car=wheel_car, dof_names=tuple(names), body_dofs=body_dofs, bogie_dofs=bogie_dofs,
-        bogie_offset=np.asarray(bogie_x) - x0, body_cg_offset=np.asarray(body_cg) - x0,
+        cars=specs,
+        M=M,
+        C=C,
+        K=K,
+        gravity_force=grav,
+        wheel_dof=wheel_dof,
+        wheel_offset=wheel_x - x0,
+        wheel_radius=wheel_r,
+        hertz_constant=wheel_ch,
+        wheel_car=wheel_car,
+        dof_names=tuple(names),
+        body_dofs=body_dofs,
+        bogie_dofs=bogie_dofs,
+        bogie_offset=np.asarray(bogie_x) - x0,
+        body_cg_offset=np.asarray(body_cg) - x0,
     )
 
 
@@ -499,8 +501,10 @@ class VehicleNewmark:
         """Wheel displacements [m] at t + dt if the contact forces at t + dt were zero."""
         tr, dt = self.train, self.dt
         a0 = 4.0 / dt**2
-        rhs = tr.gravity_force + tr.M @ (a0 * self.u + (4.0 / dt) * self.v + self.a) + tr.C @ (
-            (2.0 / dt) * self.u + self.v
+        rhs = (
+            tr.gravity_force
+            + tr.M @ (a0 * self.u + (4.0 / dt) * self.v + self.a)
+            + tr.C @ ((2.0 / dt) * self.u + self.v)
         )
         self._u_free = self._Kinv @ rhs
         return np.asarray(self._u_free[tr.wheel_dof])
@@ -545,9 +549,24 @@ class VehicleNewmark:
 
         tr = self.train
         d, P, it, rn = fused_vehicle_contact_step(
-            self._Kinv, self._KinvB, self.H, tr.M, tr.C, tr.gravity_force, tr.wheel_dof, self.u, self.v, self.a,
-            self.dt, np.ascontiguousarray(w_free), np.ascontiguousarray(G), np.ascontiguousarray(r), ch,
-            np.ascontiguousarray(delta), tol, maxit,
+            self._Kinv,
+            self._KinvB,
+            self.H,
+            tr.M,
+            tr.C,
+            tr.gravity_force,
+            tr.wheel_dof,
+            self.u,
+            self.v,
+            self.a,
+            self.dt,
+            np.ascontiguousarray(w_free),
+            np.ascontiguousarray(G),
+            np.ascontiguousarray(r),
+            ch,
+            np.ascontiguousarray(delta),
+            tol,
+            maxit,
         )
         if not (rn <= tol and np.all(np.isfinite(P))):
             raise InputError(
