@@ -31,6 +31,9 @@ from typing import Any, Literal, cast, get_args
 
 import yaml
 
+from clm_core.checks import finite as _check_finite
+from clm_core.checks import nonnegative as _check_nonnegative
+from clm_core.checks import positive as _check_positive
 from clm_core.errors import ParameterError, PresetError
 
 SoilModel = Literal["rigid", "winkler", "lysmer", "clm"]
@@ -42,11 +45,6 @@ SOIL_USED: Mapping[str, tuple[str, ...]] = {
     "lysmer": ("mf", "kf", "df"),
     "clm": ("mf", "kf", "df", "kc", "dc"),
 }
-
-
-from clm_core.checks import finite as _check_finite  # noqa: E402
-from clm_core.checks import nonnegative as _check_nonnegative  # noqa: E402
-from clm_core.checks import positive as _check_positive  # noqa: E402
 
 
 @dataclass(frozen=True)

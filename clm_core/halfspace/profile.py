@@ -48,15 +48,13 @@ from typing import Any
 
 import yaml
 
+from clm_core.checks import finite as _finite
 from clm_core.errors import ParameterError, PresetError
 
 __all__ = ["Layer", "SoilProfile", "list_soil_presets", "load_profile", "profile_from_mapping"]
 
 #: Relative tolerance of the consistency check of preset cp, cs against E, nu, rho.
 SPEED_TOLERANCE = 0.05
-
-
-from clm_core.checks import finite as _finite  # noqa: E402
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from clm_core.checks import finite as _fin
+from clm_core.checks import positive as _posv
 from clm_core.errors import InputError, ParameterError
 from clm_core.params import PER_SLEEPER_NAMES, ModelParams, SleeperOverride
 
@@ -411,9 +413,6 @@ class WheelFlat:
             out = R - np.sqrt(np.maximum(R**2 - a**2, 0.0))
         return np.asarray(np.where(inside, out, 0.0), dtype=float)
 
-
-from clm_core.checks import finite as _fin  # noqa: E402
-from clm_core.checks import positive as _posv  # noqa: E402
 
 RailDefect = DippedJoint | JointStep
 

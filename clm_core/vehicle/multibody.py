@@ -39,6 +39,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.checks import finite as _finite
+from clm_core.checks import nonnegative as _nonnegative
+from clm_core.checks import positive as _positive
 from clm_core.errors import InputError, ParameterError
 
 Array = NDArray[np.float64]
@@ -46,11 +49,6 @@ IntArray = NDArray[np.int64]
 
 #: Standard gravity [m/s^2].
 GRAVITY = 9.81
-
-
-from clm_core.checks import finite as _finite  # noqa: E402
-from clm_core.checks import nonnegative as _nonnegative  # noqa: E402
-from clm_core.checks import positive as _positive  # noqa: E402
 
 
 @dataclass(frozen=True)
