@@ -64,6 +64,8 @@ def register(sub: Any) -> None:
                    help="interval of the written time histories [s], rounded to whole steps (default 5e-4; "
                    "peaks use every step)")
     p.add_argument("--no-csv", action="store_true", help="write the NPZ only (no sleepers.csv / wheels.csv)")
+    p.add_argument("--bag", choices=("mcap", "sqlite3"), default=None,
+                   help="also write the time histories as a rosbag2 bag DIR/bag (clm_msgs; needs the ROS layer)")
     p.add_argument("--out", required=True, help="output directory")
     from clm_core.vehicle.cli_support import add_vehicle_arguments
 
@@ -177,6 +179,8 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     sim_time = n_steps * dt
     digest = writer.close({"t0": t0})
+    if args.bag:
+        _write_bag(d_out, args.bag)
 
     # summary: peaks over sleepers the loads have fully passed, away from the start
     idx = digest.peak_sleeper_index
@@ -251,3 +255,14 @@ def _run_vehicle(args: argparse.Namespace, params: Any) -> int:
     keys = ("peak_wheel_load_N", "rms_wheel_load_N", "peak_sleeper_soil_force_N", "contact_losses", "real_time_factor")
     print("simulate --vehicle: " + ", ".join(f"{k} = {summary[k]}" for k in keys if k in summary) + f" -> {args.out}")
     return 0
+
+
+def _write_bag(d_out: Any, storage: str) -> None:
+    """DIR/bag from DIR/history.npz (clm_ros.history_bag; rosbags only, no middleware)."""
+    try:
+        from clm_ros.history_bag import write_history_bag
+    except ImportError as exc:
+        raise InputError(f"--bag needs the ROS layer (clm_ros, clm_msgs): {exc}; run scripts/bootstrap.sh") from None
+    from clm_core.results import load_history
+
+    write_history_bag(load_history(d_out / "history.npz"), d_out / "bag", storage)
