@@ -13,8 +13,9 @@ import pytest
 
 pytest.importorskip("clm_ros.history_bag", reason="clm_ros not installed")
 
-from clm_core.cli import main as clm
 from clm_ros.replay import open_reader
+
+from clm_core.cli import main as clm
 
 
 def _soil_forces(bag, topic="/sleeper_response"):  # type: ignore[no-untyped-def]
