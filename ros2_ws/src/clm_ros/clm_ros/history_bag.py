@@ -37,7 +37,7 @@ def write_history_bag(history: TimeHistory, path: str | Path, storage: str = "mc
         for k, t in enumerate(history.t):
             t_ns = int(round(float(t) * NS))
 
-            def header() -> object:
+            def header(t_ns: int = t_ns) -> object:
                 return T["std_msgs/msg/Header"](
                     stamp=T["builtin_interfaces/msg/Time"](sec=t_ns // NS, nanosec=t_ns % NS), frame_id=frame_id
                 )

@@ -28,7 +28,8 @@ import numpy as np
 import rclpy
 from clm_msgs.msg import WheelLoads, WheelRailResponse
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -128,6 +129,7 @@ class VehicleNode(Node):
         self.closed_loop = bool(g("closed_loop"))
         self.lock = threading.Lock()
         self.spinner: threading.Thread | None = None
+        self.spinning = False
         self.max_delay_steps = int(float(g("max_feedback_delay")) / sim.dt)
         self.stale = 0
         self.used = 0
@@ -154,7 +156,7 @@ class VehicleNode(Node):
             except ClmError as exc:
                 self.get_logger().warning(f"track response ignored: {exc}", once=True)
 
-    def run(self, executor: SingleThreadedExecutor) -> int:
+    def run(self, executor: Any) -> int:
         """Wait for subscribers, publish in real time, wait for the answers; return the exit code."""
         g = lambda n: self.get_parameter(n).value  # noqa: E731
         t0 = time.monotonic()
@@ -167,7 +169,13 @@ class VehicleNode(Node):
             executor.spin_once(timeout_sec=0.02)
         # answers are taken by the executor in a thread of their own; this loop only
         # computes, sleeps and publishes (an rclpy spin_once costs too much to poll at 1 kHz)
-        self.spinner = threading.Thread(target=executor.spin, daemon=True)
+        self.spinning = True
+
+        def spin() -> None:
+            while self.spinning and rclpy.ok():
+                executor.spin_once(timeout_sec=0.05)
+
+        self.spinner = threading.Thread(target=spin, daemon=True)
         self.spinner.start()
         base_ns = 0 if self.clock_pub else self.get_clock().now().nanoseconds
         start = time.monotonic()
@@ -207,16 +215,16 @@ class VehicleNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console entry point ``clm-vehicle-node``."""
+    """Console entry point ``vehicle_node``."""
     rclpy.init(args=args)
     code = 0
     node = None
     try:
         node = VehicleNode()
-        ex = SingleThreadedExecutor()
+        ex = EventsExecutor()
         ex.add_node(node)
         code = node.run(ex)
-        ex.shutdown(timeout_sec=1.0)
+        node.spinning = False
         if node.spinner is not None:
             node.spinner.join(timeout=2.0)
     except ClmError as exc:
