@@ -26,6 +26,8 @@ environment compiles, later processes load the cache).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -252,6 +254,8 @@ def free_response(indptr, indices, Ka, Mb, first, ptr, L, Dinv, u, v, z, x):  # 
 
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel on a tiny system."""
+    hermite_weights(np.array([[0.3, np.nan]]), 0.0, 1.0, 2, np.array([0, 2, 4], dtype=np.int64),
+                    np.array([1, 3, 5], dtype=np.int64))
     first = np.array([0, 0], dtype=np.int64)
     ptr = np.array([0, 0, 1], dtype=np.int64)
     L = np.array([0.5])
@@ -281,3 +285,35 @@ def warm_up() -> None:
               np.zeros(1), np.zeros(1))
     unit_columns(first, ptr, L, D, np.array([1], dtype=np.int64), np.zeros((1, 2)), np.zeros(1, dtype=np.int64))
     free_response(indptr, indices, Ka, Mb, first, ptr, L, 1.0 / D, u, v, np.zeros(2), rhs)
+
+
+@njit(cache=True)
+def hermite_weights(
+    P: np.ndarray, x0: float, Le: float, n_el: int, rail_w: np.ndarray, rail_th: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """DOFs and cubic Hermite weights (S, 4 W) of wheels at positions P (S, W) on a rail
+    whose node 0 is at x0 with elements of length Le (NaN position: weight 0, DOF 0)."""
+    S, W = P.shape
+    dofs = np.zeros((S, 4 * W), dtype=np.int64)
+    w = np.zeros((S, 4 * W))
+    for s in range(S):
+        for j in range(W):
+            p = P[s, j]
+            if not np.isfinite(p):
+                continue
+            xr = (p - x0) / Le
+            e = int(math.floor(xr))
+            e = min(max(e, 0), n_el - 1)
+            xi = min(max(xr - e, 0.0), 1.0)
+            xi2 = xi * xi
+            xi3 = xi2 * xi
+            k = 4 * j
+            dofs[s, k] = rail_w[e]
+            dofs[s, k + 1] = rail_th[e]
+            dofs[s, k + 2] = rail_w[e + 1]
+            dofs[s, k + 3] = rail_th[e + 1]
+            w[s, k] = 1.0 - 3.0 * xi2 + 2.0 * xi3
+            w[s, k + 1] = Le * (xi - 2.0 * xi2 + xi3)
+            w[s, k + 2] = 3.0 * xi2 - 2.0 * xi3
+            w[s, k + 3] = Le * (-xi2 + xi3)
+    return dofs, w

@@ -86,7 +86,7 @@ from numpy.typing import ArrayLike, NDArray
 from clm_core import _kernels as kern
 from clm_core.errors import InputError, ParameterError, StabilityError
 from clm_core.params import PER_SLEEPER_NAMES, ModelParams, SleeperOverride
-from clm_core.track import TrackSystem, assemble, hermite
+from clm_core.track import TrackSystem, assemble
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -837,16 +837,9 @@ class TrackSimulator:
 
     def _weights(self, P: Array) -> tuple[IntArray, Array]:
         """DOFs and Hermite weights (S, 4 W) for wheel positions P (S, W) in the current window."""
-        S, W = P.shape
-        present = np.isfinite(P)
-        x0 = self._node_x_rel[0] + self._first * self.spacing
-        xr = (np.where(present, P, x0) - x0) / self._Le
-        e = np.clip(np.floor(xr).astype(np.int64), 0, self._n_el - 1)
-        xi = np.clip(xr - e, 0.0, 1.0)
-        H = hermite(xi, self._Le)  # (S, W, 4)
-        H[~present] = 0.0
-        dofs = np.stack([self._rail_w[e], self._rail_th[e], self._rail_w[e + 1], self._rail_th[e + 1]], axis=-1)
-        return np.ascontiguousarray(dofs.reshape(S, 4 * W)), np.ascontiguousarray(H.reshape(S, 4 * W))
+        x0 = float(self._node_x_rel[0] + self._first * self.spacing)
+        P = np.ascontiguousarray(P, dtype=np.float64)
+        return kern.hermite_weights(P, x0, float(self._Le), int(self._n_el), self._rail_w, self._rail_th)
 
     def _load_entries(self, P: Array, F: Array) -> tuple[IntArray, Array]:
         d, w = self._weights(P[None, :])
