@@ -323,31 +323,8 @@ def calibrate(
         )
         warnings += fit.warnings
         report("done", 1.0)
-        return CalibrationResult(
-            method=method,
-            bag=str(bag_path),
-            storage=contents.storage,
-            channel_map=cmap,
-            options=opts,
-            model="track+soil" if opts.soil == "joint" else "track",
-            band=fit.band,
-            norm=fit.norm,
-            parameters=fit.parameters,
-            stats=fit.stats,
-            params=fit.params,
-            misfit=fit.misfit,
-            first_estimate=fit.first_estimate,
-            first_estimate_method=fit.first_estimate_method,
-            comparisons=(),
-            main_fit=fit,
-            data=None,
-            recording=rec,
-            loads=contents.loads,
-            time_model=np.asarray(fit.model_response, dtype=float),
-            warnings=tuple(warnings),
-            notes=tuple(notes),
-            elapsed_s=time.perf_counter() - t_start,
-        )
+        return _track_result(method, bag_path, contents.storage, cmap, opts, fit, None, rec, contents.loads,
+                             np.asarray(fit.model_response, dtype=float), warnings, notes, t_start)
     fmin, fmax = opts.band(method, rec.fs)
     data, w = transfer_functions(rec, fmin, fmax, opts.window, opts.min_lines)
     warnings += w
@@ -426,27 +403,37 @@ def calibrate(
     report("track fit", 0.9)
     tm = _receptance_time_model(tfit, rec)
     report("done", 1.0)
+    return _track_result(method, bag_path, contents.storage, cmap, opts, tfit, data, rec, None, tm, warnings, notes,
+                         t_start)
+
+
+def _track_result(
+    method: str, bag_path: str | Path, storage: str, cmap: ChannelMap, opts: CalibrationOptions, fit: TrackFit,
+    data: Any, rec: Recording, loads: Any, time_model: Array | None, warnings: list[str], notes: list[str],
+    t_start: float,
+) -> CalibrationResult:
+    """The result of a track-parameter fit (receptance or pass-by)."""
     return CalibrationResult(
         method=method,
         bag=str(bag_path),
-        storage=contents.storage,
+        storage=storage,
         channel_map=cmap,
         options=opts,
         model="track+soil" if opts.soil == "joint" else "track",
-        band=tfit.band,
-        norm=tfit.norm,
-        parameters=tfit.parameters,
-        stats=tfit.stats,
-        params=tfit.params,
-        misfit=tfit.misfit,
-        first_estimate=tfit.first_estimate,
-        first_estimate_method=tfit.first_estimate_method,
+        band=fit.band,
+        norm=fit.norm,
+        parameters=fit.parameters,
+        stats=fit.stats,
+        params=fit.params,
+        misfit=fit.misfit,
+        first_estimate=fit.first_estimate,
+        first_estimate_method=fit.first_estimate_method,
         comparisons=(),
-        main_fit=tfit,
+        main_fit=fit,
         data=data,
         recording=rec,
-        loads=None,
-        time_model=tm,
+        loads=loads,
+        time_model=time_model,
         warnings=tuple(warnings),
         notes=tuple(notes),
         elapsed_s=time.perf_counter() - t_start,
