@@ -31,7 +31,7 @@ import numpy as np
 
 from clm_core.halfspace.bem import RowModel
 from clm_core.halfspace.calibrate import auto_geometry
-from clm_core.halfspace.profile import load_profile
+from clm_core.profile import load_profile
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -22,7 +22,6 @@ Presets ship in ``clm_core/presets/{tracks,soils}/NAME.yaml``.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import resources
@@ -199,76 +198,6 @@ class SoilParams:
         out: dict[str, Any] = {"model": self.model}
         out.update({n: getattr(self, n) for n in SOIL_USED[self.model]})
         return out
-
-
-@dataclass(frozen=True)
-class SoilLayer:
-    """One soil layer of a site profile (paper Tables 1, 3, 4).
-
-    Parameters
-    ----------
-    thickness : float or None
-        Layer thickness [m]; ``None`` for the underlying half-space.
-    E : float
-        Young's modulus [Pa].
-    rho : float
-        Density [kg/m^3].
-    nu : float
-        Poisson's ratio [-], in (-1, 0.5).
-    beta : float
-        Viscous material damping time [s] (complex modulus E (1 + j omega beta)).
-    """
-
-    thickness: float | None
-    E: float
-    rho: float
-    nu: float
-    beta: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.thickness is not None:
-            object.__setattr__(self, "thickness", _check_positive("layer.thickness", self.thickness))
-        object.__setattr__(self, "E", _check_positive("layer.E", self.E))
-        object.__setattr__(self, "rho", _check_positive("layer.rho", self.rho))
-        nu = _check_finite("layer.nu", self.nu)
-        if not -1.0 < nu < 0.5:
-            raise ParameterError(f"layer.nu = {nu:g}: must lie in (-1, 0.5)")
-        object.__setattr__(self, "nu", nu)
-        object.__setattr__(self, "beta", _check_nonnegative("layer.beta", self.beta))
-
-    @property
-    def G(self) -> float:
-        """Shear modulus E / (2 (1 + nu)) [Pa]."""
-        return self.E / (2.0 * (1.0 + self.nu))
-
-    @property
-    def cs(self) -> float:
-        """Shear wave speed sqrt(G / rho) [m/s]."""
-        return math.sqrt(self.G / self.rho)
-
-    @property
-    def cp(self) -> float:
-        """Compression wave speed [m/s]."""
-        return self.cs * math.sqrt(2.0 * (1.0 - self.nu) / (1.0 - 2.0 * self.nu))
-
-
-@dataclass(frozen=True)
-class SoilProfile:
-    """Layered site profile, top to bottom; the last layer is the half-space."""
-
-    layers: tuple[SoilLayer, ...]
-
-    def __post_init__(self) -> None:
-        if not self.layers:
-            raise ParameterError("profile.layers = []: at least one layer (the half-space) needed")
-        if self.layers[-1].thickness is not None:
-            raise ParameterError(
-                f"profile.layers[-1].thickness = {self.layers[-1].thickness}: the last layer is "
-                "the half-space and must have thickness null"
-            )
-        for i, layer in enumerate(self.layers[:-1]):
-            if layer.thickness is None:
-                raise ParameterError(f"profile.layers[{i}].thickness = null: only the last layer may be the half-space")
 
 
 # Names accepted by `override()` / `--set NAME=VALUE` and per-sleeper overrides.
@@ -457,22 +386,6 @@ def load_soil(name_or_path: str | Path, model: SoilModel = "clm") -> SoilParams:
     if not clm:
         raise PresetError(f"soil {str(name_or_path)!r}: no 'clm' section")
     return _build(SoilParams, {"model": "clm", **clm}, "soil").of_model(model)  # type: ignore[no-any-return]
-
-
-def load_profile(name_or_path: str | Path) -> SoilProfile:
-    """Load the layered soil profile of a soil preset or file."""
-    data = _load_yaml(name_or_path, "soils")
-    prof = data.get("profile")
-    if not prof or "layers" not in prof:
-        raise PresetError(f"soil {str(name_or_path)!r}: no 'profile: layers:' section")
-    layers = []
-    for i, lay in enumerate(prof["layers"]):
-        d = {k: lay[k] for k in ("thickness", "E", "rho", "nu", "beta") if k in lay}
-        try:
-            layers.append(SoilLayer(**d))
-        except TypeError as exc:
-            raise PresetError(f"soil {str(name_or_path)!r}: layer {i}: {exc}") from None
-    return SoilProfile(tuple(layers))
 
 
 def load_model(

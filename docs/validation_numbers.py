@@ -9,7 +9,8 @@ import numpy as np
 import scipy.linalg as sla
 
 from clm_core.frequency import receptance
-from clm_core.params import load_model, load_profile, load_soil
+from clm_core.params import load_model, load_soil
+from clm_core.profile import load_profile
 from clm_core.soil.chain import chain_time_response
 from clm_core.soil.formulas import (
     layer_resonances,

@@ -13,11 +13,11 @@ from clm_core.params import (
     list_presets,
     load_model,
     load_params_file,
-    load_profile,
     load_soil,
     load_track,
     save_params_file,
 )
+from clm_core.profile import load_profile
 from clm_core.track import assemble
 
 

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from clm_core.params import SoilParams, load_profile, load_soil
+from clm_core.params import SoilParams, load_soil
+from clm_core.profile import load_profile
 from clm_core.soil.chain import chain_frequency_response, chain_sums, chain_time_response
 from clm_core.soil.formulas import (
     alternating_sum_impedance,

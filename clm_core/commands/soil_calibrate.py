@@ -173,7 +173,7 @@ def _plots(cal: Any, out: Path) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Run the calibration; returns 0 on success."""
     from clm_core.halfspace.calibrate import calibrate_profile
-    from clm_core.halfspace.profile import load_profile
+    from clm_core.profile import load_profile
 
     _check_args(args)
     profile = load_profile(args.profile)

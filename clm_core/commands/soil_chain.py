@@ -9,7 +9,8 @@ import numpy as np
 
 from clm_core.commands._common import out_dir, write_json
 from clm_core.errors import ParameterError
-from clm_core.params import SOIL_MODELS, load_profile, load_soil, parse_assignments
+from clm_core.params import SOIL_MODELS, load_soil, parse_assignments
+from clm_core.profile import load_profile
 from clm_core.report import plot_chain
 from clm_core.soil.chain import chain_frequency_response, chain_sums, chain_time_response
 from clm_core.soil.formulas import (
@@ -120,6 +121,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _cs(soil: str) -> float | None:
     try:
-        return load_profile(soil).layers[0].cs
+        return float(load_profile(soil).layers[0].cs)
     except Exception:
         return None

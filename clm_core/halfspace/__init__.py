@@ -14,7 +14,7 @@ from clm_core.halfspace.bem import RowGeometry, RowModel, RowResult, disk_impeda
 from clm_core.halfspace.calibrate import SoilCalibration, auto_geometry, calibrate_profile, eq6_static_stiffness
 from clm_core.halfspace.green import KernelEngine, RadialKernel, point_load_displacement, surface_flexibility_k
 from clm_core.halfspace.impact import ImpactResponse, impact_response, save_impact_npz
-from clm_core.halfspace.profile import Layer, SoilProfile, load_profile
+from clm_core.profile import Layer, SoilProfile, load_profile
 
 __all__ = [
     "ImpactResponse",

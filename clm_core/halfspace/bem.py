@@ -57,7 +57,7 @@ from scipy import sparse, special
 
 from clm_core.errors import ParameterError
 from clm_core.halfspace.green import KernelEngine, RadialKernel, lagrange_weights
-from clm_core.halfspace.profile import SoilProfile
+from clm_core.profile import SoilProfile
 
 __all__ = [
     "RowGeometry",

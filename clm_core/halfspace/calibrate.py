@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from clm_core.errors import ParameterError
 from clm_core.fitting.clm_sums import ClmSumFit, LysmerFit, Norm, clm_chain_response, fit_clm_sums, fit_lysmer
 from clm_core.halfspace.bem import RowGeometry, RowModel, RowResult
-from clm_core.halfspace.profile import SoilProfile
+from clm_core.profile import SoilProfile
 
 __all__ = ["SoilCalibration", "auto_geometry", "calibrate_profile", "eq6_static_stiffness"]
 

@@ -9,7 +9,7 @@ Conventions
 - z downwards, vertical load and displacement positive downwards (a
   downward load P > 0 gives u_z > 0 at the static limit).
 - Material damping through complex Lamé constants (see
-  :mod:`clm_core.halfspace.profile`).
+  :mod:`clm_core.profile`).
 
 Method
 ------
@@ -63,7 +63,7 @@ from scipy import sparse, special
 
 from clm_core.errors import ParameterError
 from clm_core.halfspace.bessel import j0_outer
-from clm_core.halfspace.profile import Layer, SoilProfile
+from clm_core.profile import Layer, SoilProfile
 
 __all__ = [
     "KernelEngine",

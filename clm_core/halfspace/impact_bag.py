@@ -89,7 +89,7 @@ from clm_core.errors import ParameterError
 from clm_core.fitting.clm_sums import clm_chain_response
 from clm_core.halfspace.calibrate import SoilCalibration, calibrate_profile
 from clm_core.halfspace.impact import ImpactResponse, impact_response
-from clm_core.halfspace.profile import SoilProfile, load_profile
+from clm_core.profile import SoilProfile, load_profile
 
 __all__ = [
     "ReferenceImpactBag",

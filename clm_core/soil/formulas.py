@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from clm_core.errors import ParameterError
-from clm_core.params import SoilLayer, SoilParams
+from clm_core.params import SoilParams
+from clm_core.profile import Layer
 
 
 def impedance_lysmer(w: ArrayLike, mf: float, kf: float, df: float) -> NDArray[np.complex128]:
@@ -67,7 +68,7 @@ def static_stiffness_rectangle(length: float, width: float, E: float, nu: float)
     return float(E * b / (1.0 - nu**2) * (1.55 * (a / b) ** 0.75 + 0.8))
 
 
-def lysmer_from_soil(layer: SoilLayer, length: float, width: float) -> SoilParams:
+def lysmer_from_soil(layer: Layer, length: float, width: float) -> SoilParams:
     """Lysmer's analogue (m_f, k_f, d_f) of one rigid rectangular area on a half-space.
 
     - k_f: Eq. (6) for the rectangle.

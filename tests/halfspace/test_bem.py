@@ -11,7 +11,7 @@ from scipy import integrate
 from clm_core.errors import ParameterError
 from clm_core.halfspace.bem import RowGeometry, RowModel, disk_impedance, rect_inverse_distance, richardson
 from clm_core.halfspace.calibrate import eq6_static_stiffness
-from clm_core.halfspace.profile import Layer, SoilProfile, load_profile
+from clm_core.profile import Layer, SoilProfile, load_profile
 
 NU = 1.0 / 3.0
 

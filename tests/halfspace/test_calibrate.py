@@ -12,7 +12,7 @@ import yaml
 from clm_core.cli import main
 from clm_core.halfspace.bem import RowGeometry
 from clm_core.halfspace.calibrate import calibrate_profile
-from clm_core.halfspace.profile import load_profile
+from clm_core.profile import load_profile
 
 
 def test_calibration_small_row_is_consistent() -> None:

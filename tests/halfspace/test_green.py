@@ -16,7 +16,7 @@ from clm_core.halfspace.green import (
     radial_kernel,
     surface_flexibility_k,
 )
-from clm_core.halfspace.profile import Layer, SoilProfile
+from clm_core.profile import Layer, SoilProfile
 
 NU = 0.33
 #: mu r u_z / P for a vertical point load on an elastic half-space, nu = 0.33, against

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from clm_core.halfspace.bem import disk_impedance
-from clm_core.halfspace.profile import Layer, SoilProfile
+from clm_core.profile import Layer, SoilProfile
 
 NU = 1.0 / 3.0
 RHO = 1800.0

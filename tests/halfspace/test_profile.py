@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from clm_core.errors import ParameterError, PresetError
-from clm_core.halfspace.profile import Layer, SoilProfile, list_soil_presets, load_profile
+from clm_core.profile import Layer, SoilProfile, list_soil_presets, load_profile
 
 
 @pytest.mark.parametrize("name", ["mevergnies", "soft", "medium", "stiff", "haren"])
