@@ -53,20 +53,16 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import fcntl
 import json
 import os
 import platform
 import pstats
-import random
 import re
-import signal
 import struct
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +72,8 @@ REPO = Path(__file__).resolve().parents[1]
 CLM_ROS_SRC = REPO / "ros2_ws" / "src" / "clm_ros"
 if str(CLM_ROS_SRC) not in sys.path:
     sys.path.insert(0, str(CLM_ROS_SRC))
+
+from clm_ros.processes import hold_domain_id, ros_args, ros_env, stop_processes  # noqa: E402
 
 NS = 1_000_000_000
 TARGET_MEDIAN_S = 5e-3
@@ -111,48 +109,6 @@ finally:
 
 
 # ---------------------------------------------------------------------------------------------- environment
-
-
-@contextlib.contextmanager
-def hold_domain_id() -> Iterator[int]:
-    """A ROS domain id held exclusively (the file locks tests/ros/conftest.py uses, so tests never share it)."""
-    lock_dir = Path(tempfile.gettempdir()) / "clm_ros_test_domains"
-    lock_dir.mkdir(exist_ok=True)
-    ids = list(range(100, 232))
-    start = random.randrange(len(ids))
-    for domain_id in ids[start:] + ids[:start]:
-        fd = os.open(lock_dir / f"{domain_id}.lock", os.O_CREAT | os.O_RDWR, 0o666)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            continue
-        try:
-            yield domain_id
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
-        return
-    raise RuntimeError("no free ROS domain id in 100-231")
-
-
-def ros_env(domain_id: int) -> dict[str, str]:
-    """Environment of the node processes: own domain, loopback discovery (as clm demo)."""
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(domain_id)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
-    env["PYTHONUNBUFFERED"] = "1"
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(CLM_ROS_SRC), env.get("PYTHONPATH", "")) if p)
-    return env
-
-
-def ros_args(params: dict[str, Any]) -> list[str]:
-    out = ["--ros-args"]
-    for k, v in params.items():
-        out += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
-    return out
 
 
 def proc_cpu_s(pid: int) -> float | None:
@@ -222,7 +178,7 @@ def run_live(duration: float, log_dir: Path, cprofile: bool, timeout: float, tap
                 diags.append((time.monotonic(), {kv.key: kv.value for kv in st.values}))
 
     with hold_domain_id() as dom:
-        env = ros_env(dom)
+        env = ros_env(dom, pythonpath=[str(CLM_ROS_SRC)])
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         prof = {name: log_dir / f"{name}.prof" for name in ("track_node", "vehicle_node")}
 
@@ -297,14 +253,7 @@ def run_live(duration: float, log_dir: Path, cprofile: bool, timeout: float, tap
             own_cpu = time.process_time()
             node.destroy_node()
         finally:
-            for p in procs.values():
-                if p.poll() is None:
-                    p.send_signal(signal.SIGINT)
-            for p in procs.values():
-                try:
-                    p.wait(timeout=20)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            stop_processes(procs.values(), timeout=20)
             for f in logs.values():
                 f.close()
             rclpy.try_shutdown(context=ctx)

@@ -23,12 +23,8 @@ new_ros_python : callable
 from __future__ import annotations
 
 import contextlib
-import fcntl
-import os
-import random
 import subprocess
 import sys
-import tempfile
 import textwrap
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -42,9 +38,11 @@ CLM_ROS_SRC = REPO_ROOT / "ros2_ws" / "src" / "clm_ros"
 if str(CLM_ROS_SRC) not in sys.path:
     sys.path.insert(0, str(CLM_ROS_SRC))
 
-#: Domain ids handed out to tests (0 is the default and avoided; Fast DDS
-#: supports ids up to 232).
-DOMAIN_IDS = range(100, 232)
+from clm_ros import processes  # noqa: E402
+from clm_ros.errors import ClmRosError  # noqa: E402
+
+#: Domain ids handed out to tests (shared allocator with the demo and benchmarks).
+DOMAIN_IDS = processes.DOMAIN_IDS
 
 #: How long a test waits for DDS discovery before failing [s]. Discovery is
 #: usually < 0.3 s, sometimes ~3 s on a loaded machine.
@@ -59,31 +57,14 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.ros)
 
 
-def _lock_dir() -> Path:
-    path = Path(tempfile.gettempdir()) / "clm_ros_test_domains"
-    path.mkdir(exist_ok=True)
-    return path
-
-
 @contextlib.contextmanager
 def hold_domain_id() -> Iterator[int]:
-    """Hold a ROS domain id exclusively (file lock) while the context is open."""
-    ids = list(DOMAIN_IDS)
-    start = random.randrange(len(ids))
-    for domain_id in ids[start:] + ids[:start]:
-        fd = os.open(_lock_dir() / f"{domain_id}.lock", os.O_CREAT | os.O_RDWR, 0o666)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            continue
-        try:
+    """Hold a ROS domain id exclusively (the allocator of :mod:`clm_ros.processes`)."""
+    try:
+        with processes.hold_domain_id() as domain_id:
             yield domain_id
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
-        return
-    pytest.fail(f"all ROS domain ids {DOMAIN_IDS.start}-{DOMAIN_IDS.stop - 1} are in use")
+    except ClmRosError as exc:
+        pytest.fail(str(exc))
 
 
 @pytest.fixture
@@ -108,15 +89,7 @@ def make_ros_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[
     dict
         A new environment dictionary.
     """
-    env = dict(os.environ if base is None else base)
-    env["ROS_DOMAIN_ID"] = str(domain_id)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.pop("ROS_STATIC_PEERS", None)
-    env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy; warns if set with the above
-    env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
-    env["PYTHONUNBUFFERED"] = "1"
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(CLM_ROS_SRC), env.get("PYTHONPATH", "")) if p)
-    return env
+    return processes.ros_env(domain_id, base, pythonpath=[str(CLM_ROS_SRC)])
 
 
 @pytest.fixture

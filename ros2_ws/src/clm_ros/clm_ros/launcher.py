@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
-import signal
 import subprocess
 import sys
 import time
@@ -32,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from clm_ros.errors import ClmRosError
+from clm_ros.processes import hold_domain_id, ros_args, ros_env, stop_processes
 
 TOPICS = {
     "/wheel_loads": "clm_msgs/msg/WheelLoads",
@@ -39,24 +38,6 @@ TOPICS = {
     "/wheel_rail_response": "clm_msgs/msg/WheelRailResponse",
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
-
-
-def ros_env(domain_id: int) -> dict[str, str]:
-    """Environment of the demo's processes: own domain, loopback discovery."""
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(domain_id)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
-
-
-def _ros_args(params: dict[str, Any]) -> list[str]:
-    out = ["--ros-args"]
-    for k, v in params.items():
-        out += ["-p", f"{k}:={v}"]
-    return out
 
 
 def run_demo(
@@ -77,7 +58,40 @@ def run_demo(
     domain_id: int | None = None,
     timeout: float = 300.0,
 ) -> dict[str, Any]:
-    """Run the demo; return the summary (also written to ``out_dir/summary.json``)."""
+    """Run the demo; return the summary (also written to ``out_dir/summary.json``).
+
+    ``domain_id`` None: a domain held exclusively for the run
+    (:func:`clm_ros.processes.hold_domain_id`).
+    """
+    settings = dict(
+        out_dir=out_dir, vehicle=vehicle, speed=speed, duration=duration, track=track, soil=soil, model=model,
+        rate_hz=rate_hz, dt=dt, n_sleepers=n_sleepers, irregularity=irregularity, seed=seed,
+        closed_loop=closed_loop, storage=storage, timeout=timeout,
+    )
+    if domain_id is not None:
+        return _run_demo(domain_id, **settings)  # type: ignore[arg-type]
+    with hold_domain_id() as dom:
+        return _run_demo(dom, **settings)  # type: ignore[arg-type]
+
+
+def _run_demo(
+    dom: int,
+    out_dir: str | Path,
+    vehicle: str,
+    speed: float,
+    duration: float,
+    track: str,
+    soil: str,
+    model: str,
+    rate_hz: float,
+    dt: float,
+    n_sleepers: int,
+    irregularity: str,
+    seed: int,
+    closed_loop: bool,
+    storage: str,
+    timeout: float,
+) -> dict[str, Any]:
     import rclpy
     from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
@@ -91,7 +105,6 @@ def run_demo(
 
         shutil.rmtree(bag)
     out.mkdir(parents=True, exist_ok=True)
-    dom = domain_id if domain_id is not None else random.randrange(100, 200)
     env = ros_env(dom)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     track_params = {
@@ -122,7 +135,7 @@ def run_demo(
     summary: dict[str, Any] = {}
     try:
         procs["track_node"] = subprocess.Popen(
-            [sys.executable, "-m", "clm_ros.track_node", *_ros_args(track_params)],
+            [sys.executable, "-m", "clm_ros.track_node", *ros_args(track_params)],
             env=env,
             stdout=logs["track_node"],
             stderr=subprocess.STDOUT,
@@ -140,7 +153,7 @@ def run_demo(
 
         rec = BagRecorder(node, bag, TOPICS, storage=storage)
         procs["vehicle_node"] = subprocess.Popen(
-            [sys.executable, "-m", "clm_ros.vehicle_node", *_ros_args(vehicle_params)],
+            [sys.executable, "-m", "clm_ros.vehicle_node", *ros_args(vehicle_params)],
             env=env,
             stdout=logs["vehicle_node"],
             stderr=subprocess.STDOUT,
@@ -170,14 +183,7 @@ def run_demo(
         summary["message_counts"] = counts
         node.destroy_node()
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs.values():
-            try:
-                p.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_processes(procs.values(), timeout=15)
         for f in logs.values():
             f.close()
         rclpy.try_shutdown(context=ctx)
