@@ -312,15 +312,17 @@ class OnlineTrackModel:
             The frame breaks a rule of the input policy (module docstring);
             nothing changed.
         """
+        slots_before = dict(self._slot)
         try:
             self._validate(frame)
-            pos, F = self._slots_for_checked(frame)
+            pos, F = self._slots_for(frame)
             resync = self.last_stamp is None or frame.stamp - self.last_stamp > self.max_gap
             if resync:
                 self._restart(frame, pos, F)
             else:
                 self._advance(frame, pos, F)
         except Rejected as exc:
+            self._slot = slots_before  # a refused frame registers no wheel
             self.stats.rejected[exc.reason.value] += 1
             raise
         self.last_stamp = frame.stamp
@@ -328,14 +330,6 @@ class OnlineTrackModel:
         self.stats.accepted += 1
         self.stats.resyncs += int(resync)
         return self._response(frame, resync)
-
-    def _slots_for_checked(self, fr: WheelFrame) -> tuple[Array, Array]:
-        before = dict(self._slot)
-        try:
-            return self._slots_for(fr)
-        except Exception:
-            self._slot = before
-            raise
 
     def _restart(self, fr: WheelFrame, pos: Array, F: Array) -> None:
         on = np.isfinite(pos)
