@@ -304,7 +304,7 @@ def _run_vehicle(args: argparse.Namespace, params: Any, d_out: Path) -> int:
 def _write_bag(d_out: Path, storage: str) -> None:
     """DIR/bag from DIR/history.npz (rosbags only, no middleware)."""
     try:
-        from clm_ros.history_bag import write_history_bag
+        from clm_ros.history_bag import write_history_bag  # noqa: TID251 - moves into clm_core.io on p1-io (H2)
     except ImportError as exc:
         raise InputError(f"--bag needs the ROS layer (clm_ros, clm_msgs): {exc}; run scripts/bootstrap.sh") from None
     from clm_core.results import load_history
