@@ -87,7 +87,8 @@ class PeakWindow:
         return np.asarray(np.nan_to_num(f, nan=-np.inf) >= self.x_from - _TOL)
 
     def describe(self, sleeper_index: ArrayLike | None = None, sleeper_mask: ArrayLike | None = None,
-                 instants_from_s: float | None = None, fallback: bool = False) -> dict[str, Any]:
+                 instants_from_s: float | None = None, sleepers_fallback: bool = False,
+                 instants_fallback: bool = False) -> dict[str, Any]:
         """JSON-ready statement of the exclusion (``summary.json`` ``peak_exclusion``).
 
         Parameters
@@ -97,8 +98,8 @@ class PeakWindow:
             (gives ``first_sleeper``/``last_sleeper``).
         instants_from_s : float, optional
             Time of the first admitted instant [s].
-        fallback : bool
-            Nothing qualified: the peaks are over the whole run.
+        sleepers_fallback, instants_fallback : bool
+            No sleeper (instant) qualified: those peaks are over the whole run.
         """
         out: dict[str, Any] = {
             "rule": (f"per-sleeper peaks over sleepers passed by every load, at least {self.margin_bays} bays "
@@ -112,14 +113,17 @@ class PeakWindow:
             "first_sleeper": None,
             "last_sleeper": None,
             "instants_from_s": instants_from_s,
-            "fallback": fallback,
+            "fallback": sleepers_fallback or instants_fallback,
+            "sleepers_fallback": sleepers_fallback,
+            "instants_fallback": instants_fallback,
         }
         if sleeper_index is not None and sleeper_mask is not None:
             idx = np.asarray(sleeper_index)[np.asarray(sleeper_mask, dtype=bool)]
             if idx.size:
                 out["first_sleeper"], out["last_sleeper"] = int(idx.min()), int(idx.max())
-        if fallback:
-            out["rule"] = "none: no sleeper or instant qualified (run too short or loads standing); whole run"
+        if sleepers_fallback or instants_fallback:
+            which = " and ".join(w for w, f in (("sleeper", sleepers_fallback), ("instant", instants_fallback)) if f)
+            out["rule"] += f"; NOT APPLIED: no {which} qualified (run too short or loads standing), whole run"
         return out
 
 
@@ -167,40 +171,70 @@ def masked_min(values: ArrayLike, mask: ArrayLike) -> tuple[float, int, bool]:
 
 
 class BlockPeaks:
-    """Running peaks of a per-wheel quantity reported block by block, kept with where the loads were.
+    """The largest per-instant value of a streaming run (rail deflection under the wheels) after the start margin.
 
-    A streaming run reports, per block of steps, the largest rail deflection
-    under each wheel over the block's steps. :meth:`add` stores it with the
-    foremost load's position before the block (a lower bound of its position
-    at every step of the block, the loads moving forwards); :meth:`maximum`
-    takes the largest over the blocks wholly inside a :class:`PeakWindow`.
+    A streaming run reports, per block of steps, the largest value under each
+    wheel over every step of the block, plus the values at the block's output
+    instants. A block whose steps all come after the loads travelled
+    ``margin_bays`` bays (the foremost load at or past ``x_from`` before the
+    block began; loads move forwards) counts with its every-step maximum; the
+    block in which the loads cross ``x_from`` counts with its output instants
+    past it. The result is the per-instant rule of :class:`PeakWindow`, exact
+    when every step is an output instant.
+
+    Parameters
+    ----------
+    front_start : float
+        Position of the foremost load at the start [m].
+    spacing : float
+        Sleeper spacing [m].
+    margin_bays : int
+        Bays excluded at the start.
+    t_start : float
+        Time of the start [s].
     """
 
-    def __init__(self, front_start: float, t_start: float = 0.0) -> None:
+    def __init__(self, front_start: float, spacing: float, margin_bays: int = MARGIN_BAYS,
+                 t_start: float = 0.0) -> None:
+        self.x_from = peak_window(front_start, math.inf, spacing, margin_bays).x_from
         self._front = float(front_start)
         self._t = float(t_start)
-        self._rows: list[tuple[float, float, float]] = []  # (front before the block, t before, block max)
+        self._best = -math.inf
+        self._best_all = -math.inf
+        self.t_from: float | None = None  # time of the first admitted instant [s]
 
-    def add(self, block_peaks: ArrayLike, front_positions: ArrayLike, times: ArrayLike) -> None:
-        """One block: per-wheel peaks (W,), then the foremost load's positions (k,) [m] and times (k,) [s]
-        at the block's output instants."""
+    def add(self, block_peaks: ArrayLike, front_positions: ArrayLike, times: ArrayLike, values: ArrayLike) -> None:
+        """One block: per-wheel every-step maxima (W,); then, at its k output instants, the foremost load's
+        positions (k,) [m], the times (k,) [s] and the values under the wheels (k, W)."""
         pk = np.asarray(block_peaks, dtype=float)
-        fin = pk[np.isfinite(pk)]
-        if fin.size:
-            self._rows.append((self._front, self._t, float(fin.max())))
         f = np.asarray(front_positions, dtype=float)
         t = np.asarray(times, dtype=float)
+        v = np.asarray(values, dtype=float).reshape(t.size, -1)
+        if np.isfinite(pk).any():
+            self._best_all = max(self._best_all, float(np.nanmax(np.where(np.isfinite(pk), pk, -np.inf))))
+        if self._front >= self.x_from - _TOL:
+            if np.isfinite(pk).any():
+                self._best = max(self._best, float(np.max(pk[np.isfinite(pk)])))
+                if self.t_from is None:
+                    self._mark(self._t)
+        else:
+            ok = np.nan_to_num(f, nan=-np.inf) >= self.x_from - _TOL
+            rows = v[ok]
+            if rows.size and np.isfinite(rows).any():
+                self._best = max(self._best, float(np.nanmax(rows)))
+                self._mark(float(t[ok][0]))
         if f.size and np.isfinite(f[-1]):
             self._front = float(f[-1])
         if t.size:
             self._t = float(t[-1])
 
-    def maximum(self, window: PeakWindow) -> tuple[float, float | None, bool]:
-        """(max over the admitted blocks, time the first admitted block began [s], fallback)."""
-        if not self._rows:
-            return float("nan"), None, True
-        rows = np.array(self._rows)
-        ok = window.instants(rows[:, 0])
-        value, _, fallback = masked_max(rows[:, 2], ok)
-        t_from = None if fallback else float(rows[ok][0, 1])
-        return value, t_from, fallback
+    def _mark(self, t: float) -> None:
+        if self.t_from is None:
+            self.t_from = t
+
+    def maximum(self) -> tuple[float, float | None, bool]:
+        """(largest admitted value, time of the first admitted instant [s], fallback: nothing admitted,
+        the value is over the whole run)."""
+        if self._best > -math.inf:
+            return self._best, self.t_from, False
+        return (self._best_all if self._best_all > -math.inf else math.nan), None, True

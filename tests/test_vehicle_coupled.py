@@ -230,7 +230,7 @@ def _spec(**kw: object) -> VehicleRunSpec:
 
 
 def test_run_vehicle_writes_outputs(tmp_path: Path, params: ModelParams) -> None:
-    spec = _spec(vehicle="thalys", irregularity="fra5", seed=1,
+    spec = _spec(vehicle="thalys", irregularity="fra5", seed=1, duration=0.15,
                  defects=("dipped-joint:x=22,angle=0.004", "stiffness:from=24,to=26,kb=30e6"))
     summary = run_vehicle(spec, params, tmp_path)
     for name in ("vehicle_history.npz", "wheels.csv", "sleepers.csv", "peaks.csv", "summary.json",
@@ -242,9 +242,19 @@ def test_run_vehicle_writes_outputs(tmp_path: Path, params: ModelParams) -> None
         assert key in summary and on_disk[key] == pytest.approx(summary[key])
     assert summary["settings"]["n_overrides"] == 1
     h = np.load(tmp_path / "vehicle_history.npz")
-    assert h["wheel_load"].shape == (1001, 4)
+    assert h["wheel_load"].shape == (1501, 4)
     head = (tmp_path / "wheels.csv").read_text().splitlines()[0]
     assert head.startswith("t_s,x0_m,P0_N,delta0_m")
+    # the reported wheel-load peaks apply the one exclusion rule (clm_core.peaks): after the statistics start
+    # and after the train travelled 5 bays
+    ex = summary["peak_exclusion"]
+    front = h["wheel_position"].max(axis=1)
+    ok = (h["t"] >= ex["statistics_from_s"]) & (front >= ex["sleepers_from_x_m"] - 1e-9)
+    assert ok.any() and not ex["instants_fallback"]
+    assert summary["peak_wheel_load_N"] == pytest.approx(h["wheel_load"][ok].max(), rel=1e-12)
+    assert summary["min_wheel_load_N"] == pytest.approx(h["wheel_load"][ok].min(), rel=1e-12)
+    assert ex["whole_run"]["peak_wheel_load_N"] == pytest.approx(h["wheel_load"].max(), rel=1e-12)
+    assert set(ex["applies_to"]) >= {"peak_wheel_load_N", "peak_sleeper_soil_force_N"}
 
 
 def test_vehicle_run_bad_input(tmp_path: Path, params: ModelParams) -> None:

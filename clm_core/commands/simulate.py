@@ -173,10 +173,10 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
     every = max(1, int(round(args.output_dt / dt)))
     W = int(np.size(P0))
     writer = HistoryWriter(d_out, n_steps // every + 2, n_sleepers, W, d, dt, csv=not args.no_csv)
-    wheel_peaks = BlockPeaks(front0, t0)
+    wheel_peaks = BlockPeaks(front0, d, PASSED_MARGIN_BAYS, t0)
     first = sim.block()
     writer(first)
-    wheel_peaks.add(first.peak_wheel_deflection, np.nanmax(first.wheel_positions, axis=1), first.t)
+    wheel_peaks.add(first.peak_wheel_deflection, _front(first), first.t, first.wheel_deflection)
     setup_time = time.perf_counter() - t_setup
 
     out_wall = [0.0]
@@ -184,8 +184,7 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
     def record(block: Any) -> None:
         tic = time.perf_counter()
         writer(block)
-        front = np.nanmax(block.wheel_positions, axis=1) if block.t.size else np.zeros(0)
-        wheel_peaks.add(block.peak_wheel_deflection, front, block.t)
+        wheel_peaks.add(block.peak_wheel_deflection, _front(block), block.t, block.wheel_deflection)
         out_wall[0] += time.perf_counter() - tic
 
     seg_steps = max(500, n_steps // 100)
@@ -217,10 +216,9 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
     passed = window.sleepers(idx * d)
     peak_force, i_force, fb_force = masked_max(digest.peak_soil_force, passed)
     peak_rail, _, fb_rail = masked_max(digest.peak_rail_deflection, passed)
-    wheel_max, t_from, fb_wheel = wheel_peaks.maximum(window)
+    wheel_max, t_from, fb_wheel = wheel_peaks.maximum()
     max_defl = float(np.nanmax([peak_rail, wheel_max]))
     g_peak = int(idx[i_force])
-    fallback = fb_force or fb_rail or fb_wheel
     if fb_force:
         basis = "every sleeper the window held (the loads did not fully pass any sleeper: run too short)"
     else:
@@ -231,7 +229,8 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
     plot_run(d_out / "history.npz", digest, picks, d_out / "simulate.png",
              title=f"{params.name or 'parameter file'}: "
              + (f"{W} load(s), {speed:g} m/s" if table is None else f"loads from {args.loads_file}"))
-    exclusion = window.describe(idx, passed, instants_from_s=t_from, fallback=fallback)
+    exclusion = window.describe(idx, passed, instants_from_s=t_from, sleepers_fallback=fb_force or fb_rail,
+                                instants_fallback=fb_wheel)
     exclusion["applies_to"] = ["peak_sleeper_soil_force_N", "peak_sleeper_index", "max_rail_deflection_m",
                                "max_rail_deflection_under_wheel_m", "max_rail_deflection_above_sleeper_m"]
     exclusion["whole_run"] = {
@@ -299,6 +298,16 @@ def _run_vehicle(args: argparse.Namespace, params: Any, d_out: Path) -> int:
           f"{quantity(s['peak_sleeper_soil_force_N'], 'N')}, contact losses {s['contact_loss_events']}, "
           f"real-time factor {quantity(s['real_time_factor'], '', 3)} -> {d_out}")
     return 0
+
+
+def _front(block: Any) -> Any:
+    """Position of the foremost wheel at each output instant of a block [m] (NaN: no wheel on the track)."""
+    import numpy as np
+
+    P = np.asarray(block.wheel_positions, dtype=float)
+    if P.size == 0:
+        return np.full(P.shape[0], np.nan)
+    return np.max(np.where(np.isfinite(P), P, -np.inf), axis=1)
 
 
 def _write_bag(d_out: Path, storage: str) -> None:

@@ -210,7 +210,7 @@ class CoupledResult:
         passed = window.sleepers(self.sleeper_x) & np.isfinite(self.peak_soil_force)
         exclusion = window.describe(self.sleeper_index, passed,
                                     instants_from_s=float(self.t[admitted][0]) if admitted.any() else None,
-                                    fallback=fb_max or not passed.any())
+                                    sleepers_fallback=not passed.any(), instants_fallback=fb_max)
         exclusion["applies_to"] = ["peak_wheel_load_N", "min_wheel_load_N", "peak_sleeper_soil_force_N",
                                    "peak_sleeper_index"]
         exclusion["statistics_from_s"] = tf

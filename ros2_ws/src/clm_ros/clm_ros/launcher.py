@@ -294,7 +294,7 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     t_adm = [t for t, ok in zip(wheel_t, admitted[:, 0]) if ok]
     exclusion = window.describe(np.arange(gmin, gmax + 1), passed,
                                 instants_from_s=(t_adm[0] - t0) / 1e9 if t_adm else None,
-                                fallback=fb_force or fb_defl or fb_wheel)
+                                sleepers_fallback=fb_force or fb_defl, instants_fallback=fb_wheel)
     exclusion["applies_to"] = ["peak_sleeper_soil_force_N", "peak_sleeper_global_index", "max_rail_deflection_m",
                                "peak_wheel_load_N"]
     exclusion["whole_run"] = {"peak_sleeper_soil_force_N": float(np.nanmax(grid)),
