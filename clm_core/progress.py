@@ -43,7 +43,7 @@ class Progress:
 
     def __init__(self, total: float | None, desc: str, unit: str = "it", enabled: bool | None = None) -> None:
         self.enabled = terminal() if enabled is None else bool(enabled)
-        self.n = 0.0
+        self.n: float = 0
         self._bar: Any = None
         if self.enabled:
             from tqdm import tqdm

@@ -16,13 +16,13 @@ import pytest
 pytest.importorskip("rclpy")
 
 import rclpy
+from clm_ros.parameters import NODE_SETTINGS, declare_model_parameters, declare_settings, descriptor
 from rcl_interfaces.msg import ParameterType
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from clm_core.settings import SETTINGS
-from clm_ros.parameters import NODE_SETTINGS, declare_model_parameters, declare_settings, descriptor
 
 
 @pytest.fixture
