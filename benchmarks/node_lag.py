@@ -347,22 +347,20 @@ def top_functions(path: Path, n: int = 15) -> list[dict[str, Any]]:
 
 def stage_times(n: int) -> dict[str, float]:
     """Median cost [us] of each step of the per-message path, in one process, no middleware."""
-    import argparse as ap
-
     from clm_msgs.msg import WheelLoads
     from clm_ros.conversions import frame_from_msg, rclpy_responses, rclpy_wheel_loads
     from rclpy.serialization import deserialize_message, serialize_message
 
     from clm_core.online import OnlineTrackModel
     from clm_core.params import load_model
-    from clm_core.vehicle.cli_support import build_run
+    from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
     from clm_core.vehicle.streaming import StreamingVehicle
 
     params = load_model(TRACK["track"], TRACK["soil"], TRACK["model"])
-    ns = ap.Namespace(vehicle=VEHICLE["vehicle"], cars=1, speed=VEHICLE["speed"], duration=n / VEHICLE["rate"] + 1,
-                      dt=VEHICLE["dt"], start=30.0, irregularity=VEHICLE["irregularity"], seed=VEHICLE["seed"],
-                      wavelength_band="1,50", defect=[], train=None)
-    sim, _, _ = build_run(ns, params)
+    spec = VehicleRunSpec(vehicle=VEHICLE["vehicle"], cars=1, speed=VEHICLE["speed"],
+                          duration=n / VEHICLE["rate"] + 1, dt=VEHICLE["dt"], start=VEHICLE.get("start", 0.0),
+                          irregularity=VEHICLE["irregularity"], seed=VEHICLE["seed"])
+    sim = build_vehicle_run(spec, params).simulation
     veh = StreamingVehicle(sim)
     substeps = int(round(1.0 / (VEHICLE["rate"] * sim.dt)))
     model = OnlineTrackModel(params, dt=TRACK["dt"], n_sleepers=TRACK["n_sleepers"])

@@ -10,6 +10,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 bash "$root/scripts/bootstrap.sh"
 cd "$root"
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
-"$root/.venv/bin/clm" demo --out results/demo "$@"
-"$root/.venv/bin/clm" report --out results/report
+# --overwrite: results/ is regenerated on every run (the commands refuse an existing output without it)
+"$root/.venv/bin/clm" demo --out results/demo --overwrite "$@"
+"$root/.venv/bin/clm" report --out results/report --overwrite
 echo "demo: results in $root/results/ (demo/: bag, plots, summary.json; report/: receptances)"

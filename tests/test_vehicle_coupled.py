@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from clm_core.vehicle.impact import equivalent_track, jenkins_p2
 from clm_core.vehicle.irregularity import DippedJoint, Irregularity, WheelFlat, random_profile
 from clm_core.vehicle.multibody import Train
 from clm_core.vehicle.presets import load_vehicle
+from clm_core.vehicle.run import VehicleRunSpec, run_vehicle
 
 DT = 1e-4
 
@@ -225,21 +225,14 @@ def test_bad_run_input(params: ModelParams, power_car: Train) -> None:
         CoupledSimulation(power_car, params, speed=10.0).run(float("nan"))
 
 
-def _args(**kw: object) -> argparse.Namespace:
-    from clm_core.vehicle.cli_support import add_vehicle_arguments
-
-    p = argparse.ArgumentParser()
-    add_vehicle_arguments(p)
-    ns = p.parse_args([])
-    for k, v in {"speed": 30.0, "duration": 0.1, "dt": 1e-4, "start": 20.0, **kw}.items():
-        setattr(ns, k, v)
-    return ns
+def _spec(**kw: object) -> VehicleRunSpec:
+    return VehicleRunSpec.from_mapping({"speed": 30.0, "duration": 0.1, "dt": 1e-4, "start": 20.0, **kw})
 
 
-def test_run_vehicle_simulation_writes_outputs(tmp_path: Path, params: ModelParams) -> None:
-    args = _args(vehicle="thalys", irregularity="fra5", seed=1,
-                 defect=["dipped-joint:x=22,angle=0.004", "stiffness:from=24,to=26,kb=30e6"])
-    summary = run_vehicle_simulation_checked(args, params, tmp_path)
+def test_run_vehicle_writes_outputs(tmp_path: Path, params: ModelParams) -> None:
+    spec = _spec(vehicle="thalys", irregularity="fra5", seed=1, duration=0.15,
+                 defects=("dipped-joint:x=22,angle=0.004", "stiffness:from=24,to=26,kb=30e6"))
+    summary = run_vehicle(spec, params, tmp_path)
     for name in ("vehicle_history.npz", "wheels.csv", "sleepers.csv", "peaks.csv", "summary.json",
                  "wheel_loads.png", "soil_forces.png", "spectra.png"):
         assert (tmp_path / name).is_file(), name
@@ -249,27 +242,46 @@ def test_run_vehicle_simulation_writes_outputs(tmp_path: Path, params: ModelPara
         assert key in summary and on_disk[key] == pytest.approx(summary[key])
     assert summary["settings"]["n_overrides"] == 1
     h = np.load(tmp_path / "vehicle_history.npz")
-    assert h["wheel_load"].shape == (1001, 4)
+    assert h["wheel_load"].shape == (1501, 4)
     head = (tmp_path / "wheels.csv").read_text().splitlines()[0]
     assert head.startswith("t_s,x0_m,P0_N,delta0_m")
+    # the reported wheel-load peaks apply the one exclusion rule (clm_core.peaks): after the statistics start
+    # and after the train travelled 5 bays
+    ex = summary["peak_exclusion"]
+    front = h["wheel_position"].max(axis=1)
+    ok = (h["t"] >= ex["statistics_from_s"]) & (front >= ex["sleepers_from_x_m"] - 1e-9)
+    assert ok.any() and not ex["instants_fallback"]
+    assert summary["peak_wheel_load_N"] == pytest.approx(h["wheel_load"][ok].max(), rel=1e-12)
+    assert summary["min_wheel_load_N"] == pytest.approx(h["wheel_load"][ok].min(), rel=1e-12)
+    assert ex["whole_run"]["peak_wheel_load_N"] == pytest.approx(h["wheel_load"].max(), rel=1e-12)
+    assert set(ex["applies_to"]) >= {"peak_wheel_load_N", "peak_sleeper_soil_force_N"}
 
 
-def run_vehicle_simulation_checked(args: argparse.Namespace, params: ModelParams, out: Path) -> dict[str, object]:
-    from clm_core.vehicle.cli_support import run_vehicle_simulation
-
-    return run_vehicle_simulation(args, params, out)
-
-
-def test_cli_support_bad_input(tmp_path: Path, params: ModelParams) -> None:
-    from clm_core.vehicle.cli_support import run_vehicle_simulation
-
+def test_vehicle_run_bad_input(tmp_path: Path, params: ModelParams) -> None:
     with pytest.raises(PresetError, match="unknown vehicle preset 'hyperloop'"):
-        run_vehicle_simulation(_args(vehicle="hyperloop"), params, tmp_path)
-    with pytest.raises(ParameterError, match="--irregularity 'fra9'"):
-        run_vehicle_simulation(_args(vehicle="tram", irregularity="fra9"), params, tmp_path)
-    with pytest.raises(ParameterError, match="wavelength band"):
-        run_vehicle_simulation(_args(vehicle="tram", irregularity="fra5", wavelength_band="50,1"), params, tmp_path)
+        run_vehicle(_spec(vehicle="hyperloop"), params, tmp_path)
+    with pytest.raises(ParameterError, match="irregularity = 'fra9'"):
+        run_vehicle(_spec(vehicle="tram", irregularity="fra9"), params, tmp_path)
+    with pytest.raises(ParameterError, match="wavelength_band = '50,1': need 0 < LMIN < LMAX"):
+        _spec(vehicle="tram", irregularity="fra5", wavelength_band="50,1")
     with pytest.raises(ParameterError, match="wheel 7"):
-        run_vehicle_simulation(_args(vehicle="tram", defect=["wheel-flat:wheel=7,x=1,length=0.05"]), params, tmp_path)
-    with pytest.raises(ParameterError, match="--speed nan"):
-        run_vehicle_simulation(_args(vehicle="tram", speed=float("nan")), params, tmp_path)
+        run_vehicle(_spec(vehicle="tram", defects=("wheel-flat:wheel=7,x=1,length=0.05",)), params, tmp_path)
+    with pytest.raises(ParameterError, match="speed = nan: must be finite"):
+        _spec(vehicle="tram", speed=float("nan"))
+    with pytest.raises(ParameterError, match="speed = -5: must be 0 to 150 m/s"):
+        _spec(speed=-5)
+    with pytest.raises(ParameterError, match=r"unknown setting\(s\) \['sped'\]"):
+        _spec(sped=30.0)
+
+
+def test_vehicle_run_defaults_are_the_schema_defaults() -> None:
+    """One default everywhere: the spec's are the settings schema's (the vehicle node and clm demo use them)."""
+    from dataclasses import fields
+
+    from clm_core.settings import SETTINGS
+
+    spec = VehicleRunSpec()
+    for f in fields(spec):
+        if f.name in SETTINGS and f.name not in ("n_sleepers", "train"):  # automatic window; train: ()
+            assert getattr(spec, f.name) == SETTINGS[f.name].default, f.name
+    assert (spec.vehicle, spec.speed, spec.irregularity, spec.seed) == ("thalys", 83.33, "german-low", 1)

@@ -20,18 +20,63 @@ channel maps :mod:`clm_core.calibration.channels`); outputs are written by
 :mod:`clm_core.calibration.synthetic`. Format and usage: docs/calibration.md.
 """
 
-from clm_core.calibration.api import CalibrationResult, calibrate
-from clm_core.calibration.bagio import BagContents, WheelLoadRecord, read_bag
-from clm_core.calibration.channels import ChannelMap, ChannelSpec, load_channel_map, parse_channel_map
-from clm_core.calibration.errors import BagError, CalibrationError
-from clm_core.calibration.impact import SoilFit, fit_impact
-from clm_core.calibration.lsq import FitStats, ParameterEstimate
-from clm_core.calibration.options import CalibrationOptions
-from clm_core.calibration.passby import fit_passby
-from clm_core.calibration.receptance import TrackFit, fit_receptance
-from clm_core.calibration.report import write_outputs
-from clm_core.calibration.signals import Recording, SamplingRules, Signal
-from clm_core.calibration.spectra import TransferData, WindowSpec, transfer_functions
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from clm_core.calibration.api import CalibrationResult, calibrate
+    from clm_core.calibration.bagio import BagContents, WheelLoadRecord, read_bag
+    from clm_core.calibration.channels import ChannelMap, ChannelSpec, load_channel_map, parse_channel_map
+    from clm_core.calibration.errors import BagError, CalibrationError
+    from clm_core.calibration.impact import SoilFit, fit_impact
+    from clm_core.calibration.lsq import FitStats, ParameterEstimate
+    from clm_core.calibration.options import CalibrationOptions
+    from clm_core.calibration.passby import fit_passby
+    from clm_core.calibration.receptance import TrackFit, fit_receptance
+    from clm_core.calibration.report import write_outputs
+    from clm_core.calibration.signals import Recording, SamplingRules, Signal
+    from clm_core.calibration.spectra import TransferData, WindowSpec, transfer_functions
+
+#: Public name -> defining module, imported on first use: importing one submodule (``options``) or the
+#: package stays light (no scipy.signal, no matplotlib).
+_LAZY = {
+    "BagContents": "bagio",
+    "BagError": "errors",
+    "CalibrationError": "errors",
+    "CalibrationOptions": "options",
+    "CalibrationResult": "api",
+    "ChannelMap": "channels",
+    "ChannelSpec": "channels",
+    "FitStats": "lsq",
+    "ParameterEstimate": "lsq",
+    "Recording": "signals",
+    "SamplingRules": "signals",
+    "Signal": "signals",
+    "SoilFit": "impact",
+    "TrackFit": "receptance",
+    "TransferData": "spectra",
+    "WheelLoadRecord": "bagio",
+    "WindowSpec": "spectra",
+    "calibrate": "api",
+    "fit_impact": "impact",
+    "fit_passby": "passby",
+    "fit_receptance": "receptance",
+    "load_channel_map": "channels",
+    "parse_channel_map": "channels",
+    "read_bag": "bagio",
+    "transfer_functions": "spectra",
+    "write_outputs": "report",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+
 
 __all__ = [
     "BagContents",

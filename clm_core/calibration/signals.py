@@ -33,7 +33,6 @@ from fractions import Fraction
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import resample_poly
 
 from clm_core.calibration.channels import ChannelSpec
 from clm_core.calibration.errors import BagError
@@ -283,6 +282,8 @@ def common_grid(
                     f"topic {s.spec.topic}: sample rate {1 / dt:.6g} Hz has no simple ratio to the reference "
                     f"rate {fs:.6g} Hz ({sigs[0].spec.topic}); resample the record first"
                 )
+            from scipy.signal import resample_poly  # here: importing this module stays light (clm --help)
+
             x = resample_poly(x, ratio.numerator, ratio.denominator)
             notes.append(f"{s.spec.topic}: resampled from {1 / dt:.6g} Hz to {fs:.6g} Hz")
         series.append((t0, x))

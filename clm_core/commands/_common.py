@@ -1,27 +1,34 @@
-"""Arguments and helpers shared by the ``clm`` sub-commands."""
+"""Arguments and helpers shared by the ``clm`` sub-commands.
+
+- :func:`add_model_arguments` / :func:`model_from_args`: the track, soil and
+  model options (from the settings schema) and the parameter set they describe;
+- :func:`output_dir`: the one rule for outputs: an existing, non-empty output
+  is refused unless ``--overwrite``; a run that fails removes the directory it
+  created, so no empty or half-written output is left behind;
+- :func:`quantity`: numbers on the final lines, with units and 4 significant
+  digits (``40.99 kN``, ``1.443 mm``);
+- :func:`write_json`.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from clm_core.commands._options import add_setting
+from clm_core.errors import InputError
+from clm_core.params import ModelParams
 
-from clm_core.params import SOIL_MODELS, ModelParams, load_model, load_params_file, parse_assignments
 
-
-def add_model_arguments(p: argparse.ArgumentParser, sleepers_default: int) -> None:
-    """--track, --soil, --model, --params, --set, --sleepers, --elements-per-bay."""
-    p.add_argument("--track", default="mevergnies", help="track preset or YAML file (default: mevergnies)")
-    p.add_argument("--soil", default="mevergnies", help="soil preset or YAML file (default: mevergnies)")
-    p.add_argument("--model", default="clm", choices=SOIL_MODELS, help="foundation model (default: clm)")
-    p.add_argument(
-        "--params",
-        default=None,
-        help="full parameter file (rail, track, soil, overrides); replaces --track/--soil/--model",
-    )
+def add_model_arguments(p: argparse.ArgumentParser) -> None:
+    """--track, --soil, --model, --params, --set."""
+    for name in ("track", "soil", "model", "params_file"):
+        add_setting(p, name)
     p.add_argument(
         "--set",
         action="append",
@@ -29,29 +36,109 @@ def add_model_arguments(p: argparse.ArgumentParser, sleepers_default: int) -> No
         metavar="NAME=VALUE",
         help="override a parameter, e.g. --set kb=50e6 (repeatable)",
     )
-    p.add_argument(
-        "--sleepers", type=int, default=sleepers_default, help=f"number of sleepers (default: {sleepers_default})"
-    )
-    p.add_argument("--elements-per-bay", type=int, default=2, help="rail elements per sleeper bay (default: 2)")
+
+
+def add_window_arguments(p: argparse.ArgumentParser, automatic_sleepers: str = "") -> None:
+    """--sleepers, --elements-per-bay (the streaming track window).
+
+    ``automatic_sleepers``: when given, ``--sleepers`` defaults to None and
+    this text says how the command chooses the window.
+    """
+    if automatic_sleepers:
+        add_setting(p, "n_sleepers", default=None, note=automatic_sleepers)
+    else:
+        add_setting(p, "n_sleepers")
+    add_setting(p, "elements_per_bay")
 
 
 def model_from_args(args: argparse.Namespace) -> ModelParams:
     """Build the validated parameter set the arguments describe."""
+    from clm_core.params import load_model, load_params_file, parse_assignments
+
     sets = parse_assignments(args.set)
-    if args.params:
-        mp = load_params_file(args.params)
+    if args.params_file:
+        mp = load_params_file(args.params_file)
         return mp.override(**sets) if sets else mp
     return load_model(args.track, args.soil, args.model, sets)
 
 
-def out_dir(path: str) -> Path:
-    """Create and return the output directory."""
-    d = Path(path)
-    d.mkdir(parents=True, exist_ok=True)
-    return d
+def check_output(path: str | Path, overwrite: bool, option: str = "--out") -> Path:
+    """Refuse an existing, non-empty output unless ``overwrite`` (before any computation).
+
+    Raises
+    ------
+    InputError
+        ``path`` exists and is a file, or a non-empty directory without ``overwrite``.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{option} {p}: exists and is not a directory")
+    if p.is_dir() and any(p.iterdir()) and not overwrite:
+        raise InputError(f"{option} {p}: exists and is not empty; choose another directory or pass --overwrite")
+    return p
+
+
+@contextmanager
+def output_dir(path: str | Path, overwrite: bool, option: str = "--out") -> Iterator[Path]:
+    """The output directory of a command, created for the duration of the run.
+
+    Checks :func:`check_output`, creates the directory (and missing parents)
+    and yields it. If the body raises, the directories created here are removed
+    again with whatever was written into them: a failed run leaves no empty or
+    partial output. An existing directory (``--overwrite``) is left in place.
+    """
+    p = check_output(path, overwrite, option)
+    top: Path | None = None  # the highest directory created here
+    q = p.absolute()
+    while not q.exists():
+        top = q
+        q = q.parent
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{option} {p}: cannot create the directory ({exc.strerror})") from None
+    try:
+        yield p
+    except BaseException:
+        if top is not None:
+            shutil.rmtree(top, ignore_errors=True)
+        raise
+
+
+def remove_bag(path: Path, option: str) -> None:
+    """Remove an existing rosbag2 bag directory (``--overwrite``); refuse anything that is not a bag."""
+    if not path.exists():
+        return
+    if path.is_dir() and ((path / "metadata.yaml").is_file() or not any(path.iterdir())):
+        shutil.rmtree(path)
+        return
+    raise InputError(f"{option} {path}: exists and is not a rosbag2 bag (no metadata.yaml); not removed")
+
+
+_PREFIXES = {"N": ((1e6, "MN"), (1e3, "kN"), (1.0, "N")), "m": ((1.0, "m"), (1e-3, "mm"), (1e-6, "um")),
+             "s": ((1.0, "s"), (1e-3, "ms"), (1e-6, "us"))}
+
+
+def quantity(value: float | None, unit: str = "", digits: int = 4) -> str:
+    """``value`` with ``digits`` significant digits and its unit, scaled for N, m and s.
+
+    >>> quantity(40986.936, "N"), quantity(0.0014428, "m"), quantity(0.006722, "s"), quantity(1.994)
+    ('40.99 kN', '1.443 mm', '6.722 ms', '1.994')
+    """
+    if value is None:
+        return "n/a"
+    v = float(value)
+    if v != v or v in (float("inf"), float("-inf")):
+        return f"{v} {unit}".strip()
+    for scale, name in _PREFIXES.get(unit, ()):
+        if abs(v) >= scale or scale == _PREFIXES[unit][-1][0]:
+            return f"{v / scale:.{digits}g} {name}"
+    return f"{v:.{digits}g} {unit}".strip()
 
 
 def _jsonable(o: Any) -> Any:
+    import numpy as np
+
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):

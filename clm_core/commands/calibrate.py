@@ -7,18 +7,19 @@
 
 Writes params.yaml, soil.yaml / track.yaml, summary.json, report.md and PNG
 plots into DIR (:func:`clm_core.calibration.report.write_outputs`). A
-progress bar (tqdm) is shown on a terminal only.
+progress bar is shown on a terminal only (:class:`clm_core.progress.Progress`).
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
 from clm_core.calibration.options import METHODS, CalibrationOptions
 from clm_core.calibration.residuals import NORMS
+from clm_core.commands._common import check_output, output_dir, quantity
+from clm_core.commands._options import add_overwrite
 from clm_core.errors import InputError
 
 
@@ -50,6 +51,7 @@ def register(sub: Any) -> None:
     p.add_argument("--options", default=None, help="options YAML (all settings; see docs/calibration.md)")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
@@ -84,28 +86,15 @@ def run(args: argparse.Namespace) -> int:
             },
         }
     )
-    show = not args.no_progress and sys.stderr.isatty()
-    bar = None
-    progress = None
-    if show:
-        from tqdm import tqdm
+    from clm_core.progress import Progress
 
-        bar = tqdm(total=100, desc="calibrate", unit="%", file=sys.stderr, leave=False,
-                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}")
-
-        def progress(stage: str, frac: float) -> None:
-            assert bar is not None
-            bar.set_postfix_str(stage)
-            bar.update(max(0, int(round(100 * frac)) - bar.n))
-
-    try:
-        result = calibrate(args.bag, args.method, opts, progress=progress)
-    finally:
-        if bar is not None:
-            bar.close()
-    files = write_outputs(result, args.out, plots=not args.no_plots)
+    check_output(args.out, args.overwrite)
+    with Progress(100, "clm calibrate", unit="%", enabled=False if args.no_progress else None) as bar:
+        result = calibrate(args.bag, args.method, opts, progress=bar.fraction)
+    with output_dir(args.out, args.overwrite) as out:
+        files = write_outputs(result, out, plots=not args.no_plots)
     print(f"calibrate: {args.method} test, {result.model}, band {result.band[0]:g}-{result.band[1]:g} Hz, "
-          f"{result.norm} norm, misfit {result.misfit:.3g}, {result.elapsed_s:.1f} s")
+          f"{result.norm} norm, misfit {result.misfit:.3g}, {quantity(result.elapsed_s, 's', 3)}")
     for p in result.parameters:
         flag = "" if p.identifiable else "  (not identifiable)"
         print(f"  {p.name:3s} = {p.value:.5g} {p.unit}   95% [{p.ci_low:.5g}, {p.ci_high:.5g}]{flag}")

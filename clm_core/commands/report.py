@@ -3,52 +3,60 @@
 The receptance of every track on every soil preset (rigid, Lysmer, CLM) and
 the CLM soil chain of every soil, written to ``--out`` with an
 ``index.json`` of the resonance peaks and delays. Part of ``scripts/demo.sh``.
+The reports are computed by the same functions as ``clm receptance`` and
+``clm soil-chain`` (:func:`~clm_core.commands.receptance.receptance_report`,
+:func:`~clm_core.commands.soil_chain.soil_chain_report`), called directly.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
-from clm_core.params import list_presets
+from clm_core.commands._common import output_dir, write_json
+from clm_core.commands._options import add_overwrite
 
 
 def register(sub: Any) -> None:
     """Add the ``report`` sub-command."""
-    p = sub.add_parser("report", help="frequency-domain report of every track and soil preset")
+    p = sub.add_parser(
+        "report", help="frequency-domain report of every track and soil preset",
+        description="Receptances H11..H51 of every track preset on every soil preset (rigid ground, Lysmer and "
+        "CLM soils) and the CLM soil chain of every soil (Eq. 16/18 sums, pulse response, delays), each in its "
+        "own directory under --out, with index.json listing the resonance peaks and the delays.",
+    )
     p.add_argument("--out", default="results/report", help="output directory (default results/report)")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Write every receptance and soil-chain report; return the exit code."""
-    from clm_core.cli import main as clm
+    from clm_core.commands.receptance import receptance_report
+    from clm_core.commands.soil_chain import shear_wave_speed, soil_chain_report, soil_from_args
+    from clm_core.params import SoilModel, list_presets, load_model
+    from clm_core.progress import Progress
 
-    out = Path(args.out)
+    tracks, soils = list_presets("tracks"), list_presets("soils")
+    jobs = [(track, soil, model) for track in tracks for soil in soils for model in ("rigid", "lysmer", "clm")
+            if not (model == "rigid" and soil != soils[0])]
     index: dict[str, object] = {}
-    for track in list_presets("tracks"):
-        for soil in list_presets("soils"):
-            for model in ("rigid", "lysmer", "clm"):
-                if model == "rigid" and soil != list_presets("soils")[0]:
-                    continue
-                name = f"receptance_{track}_{'rigid' if model == 'rigid' else soil}_{model}"
-                code = clm(["receptance", "--track", track, "--soil", soil, "--model", model, "--out", str(out / name)])
-                if code:
-                    return code
-                index[name] = json.loads((out / name / "summary.json").read_text())["peaks_hz"]
-    for soil in list_presets("soils"):
-        name = f"soil-chain_{soil}"
-        code = clm(["soil-chain", "--soil", soil, "--out", str(out / name)])
-        if code:
-            return code
-        s = json.loads((out / name / "summary.json").read_text())
-        index[name] = {
-            "measured_delay_s": s["measured_delay_s"],
-            "eq21_delay_s": s["eq21_delay_s"],
-            "eq23_delay_s": s["eq23_delay_s"],
-        }
-    (out / "index.json").write_text(json.dumps(index, indent=2) + "\n")
+    with output_dir(args.out, args.overwrite) as out, Progress(len(jobs) + len(soils), "clm report",
+                                                               unit="report") as bar:
+        for track, soil, model in jobs:
+            name = f"receptance_{track}_{'rigid' if model == 'rigid' else soil}_{model}"
+            bar.stage(name)
+            (out / name).mkdir(exist_ok=True)
+            s = receptance_report(load_model(track, soil, cast(SoilModel, model)), out / name)
+            index[name] = s["peaks_hz"]
+            bar.update()
+        for soil in soils:
+            name = f"soil-chain_{soil}"
+            bar.stage(name)
+            (out / name).mkdir(exist_ok=True)
+            s = soil_chain_report(soil_from_args(soil, "clm", []), out / name, cs=shear_wave_speed(soil), name=soil)
+            index[name] = {k: s[k] for k in ("measured_delay_s", "eq21_delay_s", "eq23_delay_s")}
+            bar.update()
+        write_json(out / "index.json", index)
     print(f"report: {len(index)} reports in {out}/ (index.json lists the peaks and delays)")
     return 0

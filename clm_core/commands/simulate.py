@@ -1,31 +1,40 @@
 """``clm simulate``: moving wheel loads on the track–soil model in the time domain.
 
-Moving constant loads (``--load``, ``--speed``, ``--axles``) or a wheel-load
+Moving constant loads (``--load``, ``--speed``, ``--axles``), a wheel-load
 time history (``--loads-file``, CSV, format in
-:meth:`clm_core.stepper.LoadTable.read_csv`) drive the streaming simulator
+:meth:`clm_core.stepper.LoadTable.read_csv`) or a multibody vehicle
+(``--vehicle``, :mod:`clm_core.vehicle.run`) drive the streaming simulator
 (:class:`clm_core.stepper.TrackSimulator`, a window of sleepers that follows
 the wheels). Writes to ``--out``: ``history.npz``, ``sleepers.csv``,
 ``wheels.csv``, ``peaks.csv`` (layout in :mod:`clm_core.results`),
-``simulate.png`` and ``summary.json``.
+``simulate.png`` and ``summary.json``. Every option and its default comes from
+the run-settings schema (:mod:`clm_core.settings`); the reported peaks exclude
+the start-up transient and the sleepers not fully passed
+(:mod:`clm_core.peaks`, stated in ``summary.json`` under ``peak_exclusion``).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
+from pathlib import Path
 from typing import Any
 
-import numpy as np
-from tqdm import tqdm
+from clm_core.commands._common import (
+    add_model_arguments,
+    add_window_arguments,
+    model_from_args,
+    output_dir,
+    quantity,
+    write_json,
+)
+from clm_core.commands._options import add_overwrite, add_setting
+from clm_core.errors import InputError
+from clm_core.settings import DURATION
 
-from clm_core.commands._common import add_model_arguments, model_from_args, out_dir, write_json
-from clm_core.errors import InputError, ParameterError
-from clm_core.results import HistoryWriter, plot_run
-from clm_core.stepper import LoadTable, TrackSimulator
-
-#: Sleeper bays kept between the summary's sleepers and the loads at the start and end of the run.
+#: Sleeper bays kept between the summary's sleepers and the loads at the start and end of the run
+#: (:data:`clm_core.peaks.MARGIN_BAYS`).
 PASSED_MARGIN_BAYS = 5
 
 
@@ -35,45 +44,51 @@ def register(sub: Any) -> None:
         "simulate", help="moving wheel loads in the time domain (streaming, moving window)",
         description="Time-domain response of the track-soil model to moving wheel loads: sleeper soil "
         "forces, rail, sleeper and soil deflections, on a simulated window of sleepers that follows the "
-        "wheels (Newmark average acceleration).",
+        "wheels (Newmark average acceleration). Constant moving loads by default, a wheel-load time "
+        "history with --loads-file, or a multibody vehicle with --vehicle.",
     )
-    add_model_arguments(p, sleepers_default=61)
-    for a in p._actions:  # window size: automatic unless given
-        if a.dest == "sleepers":
-            a.default = None
-            a.help = ("sleepers in the simulated window (default: 61, or more when the axles need it: "
-                      "the wheels stay lead sleepers from its front and 10 from its rear)")
-    p.add_argument("--load", default="100e3",
-                   help="wheel load(s) [N], positive downwards: one value for every axle or one per axle, "
-                   "comma-separated (default 100e3)")
-    p.add_argument("--speed", type=float, default=30.0, help="speed [m/s] (default 30)")
-    p.add_argument("--axles", default="0",
-                   help="axle offsets [m] behind the first axle, comma-separated (default 0: one load)")
-    p.add_argument("--start", type=float, default=0.0, help="position of the first axle at the start [m] (default 0)")
-    p.add_argument("--loads-file", default=None,
-                   help="wheel-load time history (CSV: t_s, then x_m, F_N per wheel; empty = wheel not on the "
-                   "track); replaces --load/--speed/--axles/--start")
-    p.add_argument("--duration", type=float, default=None,
-                   help="simulated time [s] (default 1.0, or the span of --loads-file)")
-    p.add_argument("--dt", type=float, default=1e-4, help="time step [s] (default 1e-4)")
-    p.add_argument("--lead", type=int, default=None,
-                   help="sleepers kept ahead of the first axle (default: a third of the window)")
-    p.add_argument("--initial", choices=("static", "rest"), default="static",
-                   help="initial state: static equilibrium under the initial loads, or at rest (default static)")
-    p.add_argument("--output-dt", type=float, default=5e-4,
-                   help="interval of the written time histories [s], rounded to whole steps (default 5e-4; "
-                   "peaks use every step)")
+    add_model_arguments(p)
+    add_window_arguments(p, automatic_sleepers="(automatic: 61, or more when the axles need it: the wheels stay "
+                         "lead sleepers from its front and 10 from its rear)")
+    add_setting(p, "lead_sleepers")
+    add_setting(p, "load")
+    add_setting(p, "speed")
+    add_setting(p, "axles")
+    add_setting(p, "start")
+    add_setting(p, "loads_file")
+    add_setting(p, "duration", default=None, note="(with --loads-file: the span of the file)")
+    add_setting(p, "dt")
+    add_setting(p, "initial_state", note="(moving loads; a vehicle run starts from static equilibrium)")
+    add_setting(p, "output_dt")
     p.add_argument("--no-csv", action="store_true", help="write the NPZ only (no sleepers.csv / wheels.csv)")
-    p.add_argument("--bag", choices=("mcap", "sqlite3"), default=None,
-                   help="also write the time histories as a rosbag2 bag DIR/bag (clm_msgs; needs the ROS layer)")
+    p.add_argument("--bag", action="store_true",
+                   help="also write the time histories as a rosbag2 bag DIR/bag in --storage (clm_msgs; needs "
+                   "the ROS layer)")
+    add_setting(p, "storage")
     p.add_argument("--out", required=True, help="output directory")
-    from clm_core.vehicle.cli_support import add_vehicle_arguments
-
-    add_vehicle_arguments(p)
+    add_overwrite(p)
+    g = p.add_argument_group("vehicle (coupled vehicle-track simulation)")
+    add_setting(g, "vehicle", default=None, optional_value=True,
+                note="(give --vehicle alone for the default; without --vehicle: constant moving loads)")
+    add_setting(g, "cars", default=None, note="(or --train)")
+    add_setting(g, "train")
+    add_setting(g, "irregularity")
+    add_setting(g, "seed")
+    add_setting(g, "wavelength_band")
+    g.add_argument("--defect", action="append", default=[], metavar="SPEC",
+                   help="isolated defect (repeatable): dipped-joint:x=50,depth=0.002[,half_length=1] | "
+                   "dipped-joint:x=50,angle=0.01 | joint-step:x=50,height=0.001 | "
+                   "wheel-flat:wheel=0,x=20,length=0.05[,depth=..][,shape=rounded|fresh] | "
+                   "stiffness:from=30,to=36,kb=20e6 (per-sleeper override)")
+    add_setting(g, "lead_in")
+    add_setting(g, "hertz")
+    add_setting(g, "track_engine")
     p.set_defaults(func=run)
 
 
-def _floats(text: str, what: str) -> np.ndarray:
+def _floats(text: str, what: str) -> Any:
+    import numpy as np
+
     try:
         vals = np.array([float(s) for s in str(text).split(",") if s.strip()])
     except ValueError:
@@ -97,14 +112,27 @@ def _window_size(span_bays: float, lead: int | None) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run the simulation and write the outputs; return 0."""
     t_setup = time.perf_counter()
-    params = model_from_args(args)
-    if args.vehicle:
-        return _run_vehicle(args, params)
+    if args.vehicle and args.loads_file:
+        raise InputError("--vehicle and --loads-file: give one of them (the vehicle computes its own wheel loads)")
+    if args.train and args.cars is not None:
+        raise InputError("--train and --cars: give one of them")
+    with output_dir(args.out, args.overwrite) as d_out:
+        params = model_from_args(args)
+        if args.vehicle:
+            return _run_vehicle(args, params, d_out)
+        return _run_loads(args, params, d_out, t_setup)
+
+
+def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: float) -> int:
+    import numpy as np
+
+    from clm_core.peaks import BlockPeaks, masked_max, peak_window
+    from clm_core.progress import Progress
+    from clm_core.results import HistoryWriter, plot_run
+    from clm_core.stepper import LoadTable, TrackSimulator
+
     d = params.track.spacing
     dt = float(args.dt)
-    if not (math.isfinite(dt) and dt > 0):
-        raise ParameterError(f"--dt {args.dt}: must be > 0 s")
-
     table: LoadTable | None = None
     if args.loads_file:
         table = LoadTable.read_csv(args.loads_file)
@@ -125,9 +153,7 @@ def run(args: argparse.Namespace) -> int:
                 "give one or one per axle"
             )
         speed = float(args.speed)
-        if not math.isfinite(speed):
-            raise InputError(f"--speed {args.speed}: must be finite")
-        duration = 1.0 if args.duration is None else float(args.duration)
+        duration = float(args.duration) if args.duration is not None else DURATION.to_ros()
         t0 = 0.0
         P0 = float(args.start) - offsets
         F0 = loads
@@ -135,20 +161,22 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(duration) and duration > 0):
         raise InputError(f"--duration {duration}: must be > 0 s")
 
-    n_sleepers = args.sleepers if args.sleepers is not None else _window_size(span_bays, args.lead)
-    lead = n_sleepers // 3 if args.lead is None else int(args.lead)
+    n_sleepers = args.n_sleepers if args.n_sleepers is not None else _window_size(span_bays, args.lead_sleepers)
+    lead = n_sleepers // 3 if args.lead_sleepers is None else int(args.lead_sleepers)
     front0 = float(np.nanmax(P0)) if np.isfinite(P0).any() else float(args.start)
     centre = front0 - ((n_sleepers - 1) / 2 - lead) * d
     sim = TrackSimulator(params, dt, n_sleepers, args.elements_per_bay, start_position=centre, lead_sleepers=lead)
-    sim.initialize(P0, F0, t0=t0, state=args.initial)
+    sim.initialize(P0, F0, t0=t0, state=args.initial_state)
     initial_max_force = float(sim.snapshot().soil_force.max())
 
     n_steps = int(math.floor(duration / dt + 1e-6))
     every = max(1, int(round(args.output_dt / dt)))
     W = int(np.size(P0))
-    d_out = out_dir(args.out)
     writer = HistoryWriter(d_out, n_steps // every + 2, n_sleepers, W, d, dt, csv=not args.no_csv)
-    writer(sim.block())
+    wheel_peaks = BlockPeaks(front0, d, PASSED_MARGIN_BAYS, t0)
+    first = sim.block()
+    writer(first)
+    wheel_peaks.add(first.peak_wheel_deflection, _front(first), first.t, first.wheel_deflection)
     setup_time = time.perf_counter() - t_setup
 
     out_wall = [0.0]
@@ -156,13 +184,13 @@ def run(args: argparse.Namespace) -> int:
     def record(block: Any) -> None:
         tic = time.perf_counter()
         writer(block)
+        wheel_peaks.add(block.peak_wheel_deflection, _front(block), block.t, block.wheel_deflection)
         out_wall[0] += time.perf_counter() - tic
 
     seg_steps = max(500, n_steps // 100)
-    bar = tqdm(total=n_steps, unit="step", disable=not sys.stderr.isatty(), desc="clm simulate", leave=False)
     wall = 0.0
     done = 0
-    try:
+    with Progress(n_steps, "clm simulate", unit="step") as bar:
         while done < n_steps:
             k = min(seg_steps, n_steps - done)
             t_end = t0 + (done + k) * dt
@@ -175,43 +203,51 @@ def run(args: argparse.Namespace) -> int:
             wall += time.perf_counter() - tic
             done += k
             bar.update(k)
-    finally:
-        bar.close()
     sim_time = n_steps * dt
     digest = writer.close({"t0": t0})
     if args.bag:
-        _write_bag(d_out, args.bag)
+        _write_bag(d_out, args.storage)
 
-    # summary: peaks over sleepers the loads have fully passed, away from the start
+    # peaks over the sleepers the loads have fully passed and the instants after the start-up (clm_core.peaks)
     idx = digest.peak_sleeper_index
-    x = idx * d
     P_fin = np.asarray(sim.snapshot().wheel_positions)
     rear_end = float(np.nanmin(P_fin)) if np.isfinite(P_fin).any() else -np.inf
-    m = PASSED_MARGIN_BAYS * d
-    passed = (x >= front0 + m - 1e-9) & (x <= rear_end - m + 1e-9)
-    if passed.any():
-        basis = (f"sleepers {int(idx[passed][0])}..{int(idx[passed][-1])}: passed by every load, "
-                 f"at least {PASSED_MARGIN_BAYS} bays from the loads' start and end positions")
-        sel = passed
-    else:
+    window = peak_window(front0, rear_end, d, PASSED_MARGIN_BAYS)
+    passed = window.sleepers(idx * d)
+    peak_force, i_force, fb_force = masked_max(digest.peak_soil_force, passed)
+    peak_rail, _, fb_rail = masked_max(digest.peak_rail_deflection, passed)
+    wheel_max, t_from, fb_wheel = wheel_peaks.maximum()
+    max_defl = float(np.nanmax([peak_rail, wheel_max]))
+    g_peak = int(idx[i_force])
+    if fb_force:
         basis = "every sleeper the window held (the loads did not fully pass any sleeper: run too short)"
-        sel = np.ones_like(passed)
-    peak_force = float(np.max(digest.peak_soil_force[sel]))
-    max_defl = float(max(digest.max_wheel_deflection, np.max(digest.peak_rail_deflection)))
-    g_peak = int(idx[sel][np.argmax(digest.peak_soil_force[sel])])
-    plot_idx = idx[sel]
+    else:
+        basis = (f"sleepers {int(idx[passed].min())}..{int(idx[passed].max())}: passed by every load, "
+                 f"at least {PASSED_MARGIN_BAYS} bays from the loads' start and end positions")
+    plot_idx = idx[passed] if passed.any() else idx
     picks = sorted({int(plot_idx[int(round(q * (plot_idx.size - 1)))]) for q in (0.0, 0.33, 0.67, 1.0)})
     plot_run(d_out / "history.npz", digest, picks, d_out / "simulate.png",
              title=f"{params.name or 'parameter file'}: "
              + (f"{W} load(s), {speed:g} m/s" if table is None else f"loads from {args.loads_file}"))
+    exclusion = window.describe(idx, passed, instants_from_s=t_from, sleepers_fallback=fb_force or fb_rail,
+                                instants_fallback=fb_wheel)
+    exclusion["applies_to"] = ["peak_sleeper_soil_force_N", "peak_sleeper_index", "max_rail_deflection_m",
+                               "max_rail_deflection_under_wheel_m", "max_rail_deflection_above_sleeper_m"]
+    exclusion["whole_run"] = {
+        "peak_sleeper_soil_force_N": float(np.nanmax(digest.peak_soil_force)),
+        "max_rail_deflection_m": float(max(digest.max_wheel_deflection, np.nanmax(digest.peak_rail_deflection))),
+        "max_rail_deflection_under_wheel_m": float(digest.max_wheel_deflection),
+    }
     summary: dict[str, Any] = {
         "peak_sleeper_soil_force_N": peak_force,
         "peak_sleeper_index": g_peak,
         "peak_basis": basis,
         "max_rail_deflection_m": max_defl,
-        "max_rail_deflection_under_wheel_m": float(digest.max_wheel_deflection),
+        "max_rail_deflection_under_wheel_m": wheel_max,
+        "max_rail_deflection_above_sleeper_m": peak_rail,
+        "peak_exclusion": exclusion,
         "initial_max_sleeper_soil_force_N": initial_max_force,
-        "initial_state": args.initial,
+        "initial_state": args.initial_state,
         "real_time_factor": sim_time / (wall - out_wall[0]) if wall > out_wall[0] else None,
         "real_time_factor_with_recording": sim_time / wall if wall > 0 else None,
         "stepping_wall_time_s": wall - out_wall[0],
@@ -237,32 +273,54 @@ def run(args: argparse.Namespace) -> int:
         "n_overrides": len(params.overrides),
     }
     write_json(d_out / "summary.json", summary)
-    print(f"peak sleeper soil force {peak_force / 1e3:.2f} kN (sleeper {g_peak}), "
-          f"max rail deflection {max_defl * 1e3:.3f} mm, real-time factor {summary['real_time_factor']:.2f} "
-          f"-> {d_out}")
+    rtf = summary["real_time_factor"]
+    print(f"simulate: peak sleeper soil force {quantity(peak_force, 'N')} (sleeper {g_peak}), max rail deflection "
+          f"{quantity(max_defl, 'm')}, real-time factor {quantity(rtf, '', 3)} -> {d_out}")
     return 0
 
 
-def _run_vehicle(args: argparse.Namespace, params: Any) -> int:
-    """``--vehicle``: the coupled vehicle-track simulation (clm_core.vehicle)."""
-    from clm_core.vehicle.cli_support import run_vehicle_simulation
+def _run_vehicle(args: argparse.Namespace, params: Any, d_out: Path) -> int:
+    """``--vehicle``: the coupled vehicle-track simulation (clm_core.vehicle.run)."""
+    from clm_core.progress import terminal
+    from clm_core.vehicle.run import VehicleRunSpec, run_vehicle
 
-    if args.duration is None:
-        args.duration = 2.0
-    if args.loads_file:
-        raise InputError("--vehicle and --loads-file: give one of them (the vehicle computes its own wheel loads)")
-    summary = run_vehicle_simulation(args, params, out_dir(args.out))
-    keys = ("peak_wheel_load_N", "rms_wheel_load_N", "peak_sleeper_soil_force_N", "contact_losses", "real_time_factor")
-    print("simulate --vehicle: " + ", ".join(f"{k} = {summary[k]}" for k in keys if k in summary) + f" -> {args.out}")
+    spec = VehicleRunSpec.from_mapping({
+        "vehicle": args.vehicle, "cars": args.cars, "train": tuple(s for s in (args.train or "").split(",") if s),
+        "speed": args.speed, "duration": args.duration, "dt": args.dt, "start": args.start,
+        "irregularity": args.irregularity, "seed": args.seed, "wavelength_band": args.wavelength_band,
+        "defects": tuple(args.defect), "lead_in": args.lead_in, "hertz": args.hertz,
+        "track_engine": args.track_engine, "n_sleepers": args.n_sleepers,
+        "elements_per_bay": args.elements_per_bay, "lead_sleepers": args.lead_sleepers, "output_dt": args.output_dt,
+    })
+    s = run_vehicle(spec, params, d_out, csv_files=not args.no_csv, progress=terminal())
+    print(f"simulate --vehicle: peak wheel load {quantity(s['peak_wheel_load_N'], 'N')}, rms wheel load "
+          f"{quantity(s['rms_wheel_load_N'], 'N')}, peak sleeper soil force "
+          f"{quantity(s['peak_sleeper_soil_force_N'], 'N')}, contact losses {s['contact_loss_events']}, "
+          f"real-time factor {quantity(s['real_time_factor'], '', 3)} -> {d_out}")
     return 0
 
 
-def _write_bag(d_out: Any, storage: str) -> None:
-    """DIR/bag from DIR/history.npz (clm_ros.history_bag; rosbags only, no middleware)."""
+def _front(block: Any) -> Any:
+    """Position of the foremost wheel at each output instant of a block [m] (NaN: no wheel on the track)."""
+    import numpy as np
+
+    P = np.asarray(block.wheel_positions, dtype=float)
+    if P.size == 0:
+        return np.full(P.shape[0], np.nan)
+    return np.max(np.where(np.isfinite(P), P, -np.inf), axis=1)
+
+
+def _write_bag(d_out: Path, storage: str) -> None:
+    """DIR/bag from DIR/history.npz (rosbags only, no middleware)."""
     try:
-        from clm_ros.history_bag import write_history_bag
+        from clm_ros.history_bag import write_history_bag  # noqa: TID251 - moves into clm_core.io on p1-io (H2)
     except ImportError as exc:
         raise InputError(f"--bag needs the ROS layer (clm_ros, clm_msgs): {exc}; run scripts/bootstrap.sh") from None
     from clm_core.results import load_history
 
-    write_history_bag(load_history(d_out / "history.npz"), d_out / "bag", storage)
+    bag = d_out / "bag"
+    if bag.exists():  # --overwrite (output_dir refused it otherwise)
+        from clm_core.commands._common import remove_bag
+
+        remove_bag(bag, "--out")
+    write_history_bag(load_history(d_out / "history.npz"), bag, storage)

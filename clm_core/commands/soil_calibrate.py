@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from clm_core.commands._common import check_output, output_dir, quantity, remove_bag
+from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError, PresetError
 
 HELP = "fit CLM soil parameters to a rigorous half-space computation of a soil profile"
@@ -64,6 +66,7 @@ def register(subparsers: Any) -> None:
         help="non-positive-definite chain damping: refuse (default) or clip d_c to 95%% of the bound",
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
@@ -174,27 +177,39 @@ def run(args: argparse.Namespace) -> int:
     """Run the calibration; returns 0 on success."""
     from clm_core.halfspace.calibrate import calibrate_profile
     from clm_core.profile import load_profile
+    from clm_core.progress import Progress
 
     _check_args(args)
+    check_output(args.out, args.overwrite)
     profile = load_profile(args.profile)
     freqs = np.arange(0.0, args.sweep_max + 0.5 * args.df, args.df)
     if freqs[-1] > args.sweep_max + 1e-9:
         freqs = freqs[:-1]
-    cal = calibrate_profile(
-        profile,
-        freqs=freqs,
-        fmin=args.fmin,
-        fmax=args.fmax,
-        norm=args.norm,
-        n_areas=args.areas,
-        spacing=args.spacing,
-        on_unstable=args.on_unstable,
+    with Progress(100, "clm soil-calibrate", unit="%") as bar:
+        cal = calibrate_profile(
+            profile,
+            freqs=freqs,
+            fmin=args.fmin,
+            fmax=args.fmax,
+            norm=args.norm,
+            n_areas=args.areas,
+            spacing=args.spacing,
+            on_unstable=args.on_unstable,
+            progress=bar.fraction,
+        )
+    with output_dir(args.out, args.overwrite) as out:
+        _write(args, profile, cal, out)
+    fit = cal.fit
+    print(
+        f"{profile.name}: mf = {quantity(fit.mf, 'kg')}, kf = {fit.kf / 1e6:.4g} MN/m, df = {fit.df / 1e3:.4g} kN s/m, "
+        f"kc = {fit.kc / 1e6:.4g} MN/m, dc = {fit.dc / 1e3:.4g} kN s/m "
+        f"(band {fit.band[0]:g}-{fit.band[1]:g} Hz, norm {fit.norm}; residuals {fit.residual_total:.3f} / "
+        f"{fit.residual_alternating:.3f}) -> {out}"
     )
-    out: Path = args.out
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise PresetError(f"--out '{out}': cannot create the directory ({exc.strerror})") from None
+    return 0
+
+
+def _write(args: argparse.Namespace, profile: Any, cal: Any, out: Path) -> None:
     fit = cal.fit
     g = cal.row.geometry
     soil = {
@@ -239,13 +254,6 @@ def run(args: argparse.Namespace) -> int:
         files += _plots(cal, out)
     summary["files"] = files
     (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
-    print(
-        f"{profile.name}: mf = {fit.mf:.0f} kg, kf = {fit.kf / 1e6:.1f} MN/m, df = {fit.df / 1e3:.0f} kN s/m, "
-        f"kc = {fit.kc / 1e6:.1f} MN/m, dc = {fit.dc / 1e3:.0f} kN s/m "
-        f"(band {fit.band[0]:g}-{fit.band[1]:g} Hz, norm {fit.norm}; residuals {fit.residual_total:.3f} / "
-        f"{fit.residual_alternating:.3f}) -> {out}"
-    )
-    return 0
 
 
 # ----------------------------------------------------------------------------- --impact-bag (issue 7)
@@ -287,7 +295,7 @@ def register(subparsers: Any) -> None:  # type: ignore[no-redef]
         "areas) of the rigorous response to the Eq. (1) pulse, with reference.yaml; needs --df <= 2 with "
         f"{IMPACT_BAG_FS:g}/df an even integer (default 1 Hz: 1 s record) and --sweep-max <= {IMPACT_BAG_FS / 2:g}",
     )
-    g.add_argument("--bag-storage", choices=("mcap", "sqlite3"), default="mcap", help="bag storage (default mcap)")
+    add_setting(g, "storage")
     g.add_argument("--bag-snr", type=_snr_arg, default=30.0, help="SNR of the bag's noise [dB] or 'none' (default 30)")
     g.add_argument("--bag-seed", type=int, default=1, help="noise seed (default 1)")
     p.set_defaults(func=run)
@@ -315,8 +323,6 @@ def run(args: argparse.Namespace) -> int:  # type: ignore[no-redef]
     """Run the calibration (and write the reference impact bag with ``--impact-bag``); returns 0 on success."""
     if not getattr(args, "impact_bag", False):
         return _run_base(args)
-    import shutil
-
     from clm_core.halfspace.impact_bag import RigorousReference, write_reference_impact_bag
 
     _check_args(args)
@@ -326,14 +332,13 @@ def run(args: argparse.Namespace) -> int:  # type: ignore[no-redef]
         return code
     out: Path = args.out
     ref = RigorousReference.from_soil_calibrate_output(out)
-    if bag_path.exists():
-        shutil.rmtree(bag_path)
+    remove_bag(bag_path, "--out")
     bag = write_reference_impact_bag(
         bag_path,
         reference=ref,
         snr_db=args.bag_snr,
         seed=args.bag_seed,
-        storage=args.bag_storage,
+        storage=args.storage,
         fs=IMPACT_BAG_FS,
     )
     summary_path = out / "summary.json"
@@ -341,7 +346,7 @@ def run(args: argparse.Namespace) -> int:  # type: ignore[no-redef]
     summary["files"] = [*summary.get("files", []), IMPACT_BAG_DIR]
     summary["impact_bag"] = {
         "path": IMPACT_BAG_DIR,
-        "storage": args.bag_storage,
+        "storage": args.storage,
         "snr_db": args.bag_snr,
         "seed": args.bag_seed,
         "fs_hz": IMPACT_BAG_FS,
@@ -350,7 +355,7 @@ def run(args: argparse.Namespace) -> int:  # type: ignore[no-redef]
     size = sum(p.stat().st_size for p in bag.path.iterdir())
     snr = "noise-free" if args.bag_snr is None else f"SNR {args.bag_snr:g} dB"
     print(
-        f"reference impact bag ({bag.record.settings['n_areas']} areas, {snr}, {args.bag_storage}, "
+        f"reference impact bag ({bag.record.settings['n_areas']} areas, {snr}, {args.storage}, "
         f"{size / 1e6:.2f} MB) -> {bag.path}; calibrate with: clm calibrate {bag.path} --method impact"
     )
     return 0

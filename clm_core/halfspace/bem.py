@@ -48,7 +48,7 @@ order p = 1 by default); :func:`convergence_study` reports the sequence. See
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -424,8 +424,14 @@ class RowModel:
         H: ComplexArray = np.asarray(np.linalg.inv(K), dtype=np.complex128)
         return H, np.asarray(col, dtype=np.complex128)
 
-    def sweep(self, freqs: Sequence[float] | FloatArray, full: bool = True) -> RowResult:
-        """Flexibility of the row at the frequencies ``freqs`` [Hz] (each <= f_max)."""
+    def sweep(
+        self, freqs: Sequence[float] | FloatArray, full: bool = True,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> RowResult:
+        """Flexibility of the row at the frequencies ``freqs`` [Hz] (each <= f_max).
+
+        ``progress``, if given, is called with (frequencies done, total) after each one.
+        """
         f = np.asarray(freqs, dtype=float)
         if f.ndim != 1 or f.size == 0:
             raise ParameterError("freqs: need a non-empty 1-D array of frequencies [Hz]")
@@ -441,6 +447,8 @@ class RowModel:
             cols[i] = col
             if Hs is not None and H is not None:
                 Hs[i] = H
+            if progress is not None:
+                progress(i + 1, f.size)
         info = {"mesh_wavelength_ratio": self.mesh_wavelength_ratio, "dr": self.dr, "r_max": self.r_max}
         return RowResult(
             freqs=f,

@@ -18,7 +18,7 @@ The impedance of one isolated area is computed as well, with its Lysmer fit
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Literal
 
@@ -194,6 +194,7 @@ def calibrate_profile(
     mass: Literal["nonnegative", "free"] = "nonnegative",
     on_unstable: Literal["raise", "clip"] = "raise",
     full: bool = False,
+    progress: Callable[[str, float], None] | None = None,
 ) -> SoilCalibration:
     """Fit CLM parameters to the rigorous response of a row of contact areas.
 
@@ -219,6 +220,8 @@ def calibrate_profile(
         Constraints, see :func:`clm_core.fitting.clm_sums.fit_clm_sums`.
     full : bool
         Keep the full N x N flexibility (else the centre column only).
+    progress : callable, optional
+        Called with (stage, fraction of the work done in [0, 1]) during the sweeps.
 
     Returns
     -------
@@ -229,7 +232,12 @@ def calibrate_profile(
         raise ParameterError("freqs: need an increasing 1-D array of >= 3 frequencies >= 0 [Hz]")
     f_top = float(f.max())
     geo = geometry or auto_geometry(profile, f_top, n_areas=n_areas, spacing=spacing)
-    row = RowModel(profile, geo, f_max=f_top).sweep(f, full=full)
+    def report(stage: str, lo: float, hi: float) -> Callable[[int, int], None] | None:
+        if progress is None:
+            return None
+        return lambda i, n: progress(stage, lo + (hi - lo) * i / n)
+
+    row = RowModel(profile, geo, f_max=f_top).sweep(f, full=full, progress=report("row sweep", 0.0, 0.9))
     fit = fit_clm_sums(
         f,
         row.total_sum(),
@@ -242,7 +250,7 @@ def calibrate_profile(
         n_areas=geo.n_areas,
     )
     single_geo = replace(geo, n_areas=1)
-    single = RowModel(profile, single_geo, f_max=f_top).sweep(f, full=False)
+    single = RowModel(profile, single_geo, f_max=f_top).sweep(f, full=False, progress=report("single area", 0.9, 1.0))
     Ksingle = 1.0 / single.centre_column[:, 0]
     lys = fit_lysmer(f, Ksingle, fmin=fmin, fmax=fmax, norm=norm, mass=mass)
     top = profile.top

@@ -16,34 +16,86 @@ presets
     YAML vehicle presets (``clm_core/presets/vehicles``) and user vehicle files.
 impact
     Jenkins et al. (1974) P2 force and equivalent track parameters.
+run
+    The typed vehicle-run builder (:class:`VehicleRunSpec` -> simulation) of ``clm simulate
+    --vehicle`` and the vehicle node.
 cli_support
-    ``--vehicle`` options and the run/write function for ``clm simulate``.
+    Output files and plots of a vehicle run.
 reference_track
     A fixed-window reference engine with the streaming engine's coupling API.
 
 Conventions: SI units; displacements and forces positive downwards; the track
 is ONE rail line, so vehicle loads are wheel loads (half the axle load).
+
+The names below are imported on first use, so that importing the package (or
+reading its presets) does not compile the numba kernels.
 """
 
-from clm_core.vehicle.contact import hertz_constant, solve_contact
-from clm_core.vehicle.coupled import CoupledResult, CoupledSimulation, simulate
-from clm_core.vehicle.irregularity import (
-    DippedJoint,
-    Irregularity,
-    JointStep,
-    Profile,
-    WheelFlat,
-    load_profile_csv,
-    local_stiffness_change,
-    psd,
-    random_profile,
-)
-from clm_core.vehicle.multibody import CarSpec, Train, VehicleNewmark, VehicleType, build_train
-from clm_core.vehicle.presets import VehicleFile, list_vehicle_presets, load_vehicle
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from clm_core.vehicle.contact import hertz_constant, solve_contact
+    from clm_core.vehicle.coupled import CoupledResult, CoupledSimulation, simulate
+    from clm_core.vehicle.irregularity import (
+        DippedJoint,
+        Irregularity,
+        JointStep,
+        Profile,
+        WheelFlat,
+        load_profile_csv,
+        local_stiffness_change,
+        psd,
+        random_profile,
+    )
+    from clm_core.vehicle.multibody import CarSpec, Train, VehicleNewmark, VehicleType, build_train
+    from clm_core.vehicle.presets import VehicleFile, list_vehicle_presets, load_vehicle
+    from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
+
+#: Public name -> defining module (imported on first use: importing the package stays light).
+_LAZY = {
+    **dict.fromkeys(("hertz_constant", "solve_contact"), "contact"),
+    **dict.fromkeys(("CoupledResult", "CoupledSimulation", "simulate"), "coupled"),
+    **dict.fromkeys(("DippedJoint", "Irregularity", "JointStep", "Profile", "WheelFlat", "load_profile_csv",
+                     "local_stiffness_change", "psd", "random_profile"), "irregularity"),
+    **dict.fromkeys(("CarSpec", "Train", "VehicleNewmark", "VehicleType", "build_train"), "multibody"),
+    **dict.fromkeys(("VehicleFile", "list_vehicle_presets", "load_vehicle"), "presets"),
+    **dict.fromkeys(("VehicleRunSpec", "build_vehicle_run"), "run"),
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+
 
 __all__ = [
-    "CarSpec", "CoupledResult", "CoupledSimulation", "DippedJoint", "Irregularity", "JointStep",
-    "Profile", "Train", "VehicleFile", "VehicleNewmark", "VehicleType", "WheelFlat", "build_train",
-    "hertz_constant", "list_vehicle_presets", "load_profile_csv", "load_vehicle",
-    "local_stiffness_change", "psd", "random_profile", "simulate", "solve_contact",
+    "CarSpec",
+    "CoupledResult",
+    "CoupledSimulation",
+    "DippedJoint",
+    "Irregularity",
+    "JointStep",
+    "Profile",
+    "Train",
+    "VehicleFile",
+    "VehicleNewmark",
+    "VehicleRunSpec",
+    "VehicleType",
+    "WheelFlat",
+    "build_train",
+    "build_vehicle_run",
+    "hertz_constant",
+    "list_vehicle_presets",
+    "load_profile_csv",
+    "load_vehicle",
+    "local_stiffness_change",
+    "psd",
+    "random_profile",
+    "simulate",
+    "solve_contact",
 ]

@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from clm_core.errors import InputError, ParameterError
 from clm_core.params import ModelParams
+from clm_core.peaks import MARGIN_BAYS, PeakWindow, masked_max, masked_min, peak_window
 from clm_core.vehicle.contact import hertz_constant, static_compression
 from clm_core.vehicle.irregularity import Irregularity
 from clm_core.vehicle.multibody import Train, VehicleNewmark
@@ -155,31 +156,31 @@ class CoupledResult:
         events = int(np.sum(off[1:] & ~off[:-1])) + int(np.sum(off[0]))
         return int(off.sum()), events
 
-    def peak_soil_force_passed(self, margin_bays: int = 5) -> tuple[float, str, int]:
+    def peak_window(self, margin_bays: int = MARGIN_BAYS) -> PeakWindow:
+        """The part of the run the reported peaks come from (:mod:`clm_core.peaks`)."""
+        d = float(self.sleeper_x[1] - self.sleeper_x[0]) if self.sleeper_x.size > 1 else 1.0
+        return peak_window(float(self.wheel_position[0].max()), float(self.wheel_position[-1].min()), d, margin_bays)
+
+    def peak_soil_force_passed(self, margin_bays: int = MARGIN_BAYS) -> tuple[float, str, int]:
         """Peak soil force [N] over the sleepers every wheel has passed, away from the start and end.
 
         Sleepers at least ``margin_bays`` bays ahead of the first wheel's
         start position and behind the last wheel's final position (the rule of
-        ``clm simulate``); all sleepers if none qualifies. Returns (peak,
-        description of the basis, global index of the sleeper).
+        :mod:`clm_core.peaks`, as in ``clm simulate``); all sleepers if none
+        qualifies. Returns (peak, description of the basis, global index of the sleeper).
         """
-        d = float(self.sleeper_x[1] - self.sleeper_x[0]) if self.sleeper_x.size > 1 else 1.0
-        front0 = float(self.wheel_position[0].max())
-        rear_end = float(self.wheel_position[-1].min())
-        x = self.sleeper_x
-        ok = np.isfinite(self.peak_soil_force)
-        passed = ok & (x >= front0 + margin_bays * d - 1e-9) & (x <= rear_end - margin_bays * d + 1e-9)
-        if passed.any():
-            sel = passed
-            basis = (f"sleepers {int(self.sleeper_index[sel][0])}..{int(self.sleeper_index[sel][-1])}: passed by "
-                     f"every wheel, at least {margin_bays} bays from the wheels' start and end positions")
-        elif ok.any():
-            sel = ok
+        window = self.peak_window(margin_bays)
+        passed = window.sleepers(self.sleeper_x)
+        value, i, fallback = masked_max(self.peak_soil_force, passed)
+        if i < 0:
+            return float("nan"), "no soil force recorded", -1
+        if fallback:
             basis = "every sleeper the window held (no sleeper fully passed: run too short)"
         else:
-            return float("nan"), "no soil force recorded", -1
-        i = int(np.argmax(np.where(sel, self.peak_soil_force, -np.inf)))
-        return float(self.peak_soil_force[i]), basis, int(self.sleeper_index[i])
+            sel = passed & np.isfinite(self.peak_soil_force)
+            basis = (f"sleepers {int(self.sleeper_index[sel][0])}..{int(self.sleeper_index[sel][-1])}: passed by "
+                     f"every wheel, at least {margin_bays} bays from the wheels' start and end positions")
+        return value, basis, int(self.sleeper_index[i])
 
     def summary(self, t_from: float | None = None) -> dict[str, Any]:
         """Peak and RMS wheel load, peak soil force, contact losses, real-time factor.
@@ -200,15 +201,33 @@ class CoupledResult:
         dP = P - self.static_wheel_load[None, :]
         steps, events = self.contact_losses(tf)
         peak_soil, basis, g_peak = self.peak_soil_force_passed()
+        # peaks of the wheel loads: after the statistics start and after the loads travelled the margin
+        window = self.peak_window()
+        admitted = sel & window.instants(self.wheel_position.max(axis=1))
+        rows = np.repeat(admitted[:, None], self.wheel_load.shape[1], axis=1)
+        p_max, _, fb_max = masked_max(self.wheel_load, rows)
+        p_min, _, _ = masked_min(self.wheel_load, rows)
+        passed = window.sleepers(self.sleeper_x) & np.isfinite(self.peak_soil_force)
+        exclusion = window.describe(self.sleeper_index, passed,
+                                    instants_from_s=float(self.t[admitted][0]) if admitted.any() else None,
+                                    sleepers_fallback=not passed.any(), instants_fallback=fb_max)
+        exclusion["applies_to"] = ["peak_wheel_load_N", "min_wheel_load_N", "peak_sleeper_soil_force_N",
+                                   "peak_sleeper_index"]
+        exclusion["statistics_from_s"] = tf
+        exclusion["whole_run"] = {"peak_wheel_load_N": float(self.wheel_load.max()),
+                                  "min_wheel_load_N": float(self.wheel_load.min()),
+                                  "peak_sleeper_soil_force_N": float(np.nanmax(self.peak_soil_force))
+                                  if np.isfinite(self.peak_soil_force).any() else None}
         return {
-            "peak_wheel_load_N": float(P.max()),
-            "min_wheel_load_N": float(P.min()),
+            "peak_wheel_load_N": p_max,
+            "min_wheel_load_N": p_min,
             "rms_wheel_load_N": float(np.sqrt(np.mean(P**2))),
             "rms_dynamic_wheel_load_N": float(np.sqrt(np.mean(dP**2))),
             "static_wheel_load_N": [float(v) for v in self.static_wheel_load],
             "peak_sleeper_soil_force_N": peak_soil,
             "peak_sleeper_index": g_peak,
             "peak_basis": basis,
+            "peak_exclusion": exclusion,
             "contact_loss_steps": steps,
             "contact_loss_events": events,
             "contact_loss_time_s": steps * float(self.meta.get("dt", 0.0)),
@@ -380,7 +399,7 @@ class CoupledSimulation:
         duration : float
             Simulated time [s] (> 0).
         progress : bool
-            Show a tqdm progress bar.
+            Show a progress bar (:class:`clm_core.progress.Progress`: on a terminal only).
 
         Returns
         -------
@@ -425,9 +444,9 @@ class CoupledSimulation:
         delta = delta0.copy()
         bar = None
         if progress:
-            from tqdm import tqdm
+            from clm_core.progress import Progress
 
-            bar = tqdm(total=n_steps, unit="step", desc="coupled")
+            bar = Progress(n_steps, "clm simulate --vehicle", unit="step")
         compiled = self.engine == "stream" and self._factory is None
         t_wall = time.perf_counter()
         if compiled:

@@ -100,7 +100,7 @@ class StreamingVehicle:
     sim : CoupledSimulation
         Describes the run (train, track parameters, speed, dt, irregularity,
         start position, Hertz constants); built e.g. by
-        :func:`clm_core.vehicle.cli_support.build_run`. Its own track engine
+        :func:`clm_core.vehicle.run.build_vehicle_run`. Its own track engine
         is not used.
     """
 

@@ -308,7 +308,7 @@ def test_cli_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
     args = build_parser().parse_args(
         ["soil-calibrate", "--profile", "medium", "--out", str(tmp_path), "--impact-bag", "--bag-snr", "none"]
     )
-    assert args.impact_bag and args.bag_snr is None and args.bag_storage == "mcap"
+    assert args.impact_bag and args.bag_snr is None and args.storage == "mcap"
     assert not build_parser().parse_args(["soil-calibrate", "--profile", "x", "--out", "y"]).impact_bag
     base = ["soil-calibrate", "--profile", "medium", "--out", str(tmp_path / "x"), "--impact-bag"]
     assert main([*base, "--df", "5", "--sweep-max", "150"]) == 2

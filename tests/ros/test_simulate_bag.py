@@ -36,7 +36,7 @@ def _soil_forces(bag, topic="/sleeper_response"):  # type: ignore[no-untyped-def
 def test_simulate_bag_replays(tmp_path, storage) -> None:  # type: ignore[no-untyped-def]
     out = tmp_path / "sim"
     assert clm(["simulate", "--load", "100e3", "--speed", "30", "--duration", "0.4", "--dt", "1e-4",
-                "--bag", storage, "--out", str(out)]) == 0
+                "--bag", "--storage", storage, "--out", str(out)]) == 0
     assert clm(["replay", str(out / "bag"), "--storage", storage, "--out", str(tmp_path / "replayed")]) == 0
     a = _soil_forces(out / "bag")
     b = _soil_forces(tmp_path / "replayed")

@@ -49,5 +49,11 @@ setup(
             "vehicle_node = clm_ros.vehicle_node:main",
             "calibration_node = clm_ros.calibration_node:main",
         ],
+        # sub-commands of the core's `clm` command (clm_core.cli loads this group; the core never imports clm_ros)
+        "clm.commands": [
+            "bags = clm_ros.commands.bags:register",
+            "demo = clm_ros.commands.demo:register",
+            "replay = clm_ros.commands.replay:register",
+        ],
     },
 )

@@ -66,9 +66,7 @@ from typing import Any
 import rclpy
 from clm_msgs.srv import Calibrate
 from rcl_interfaces.msg import (
-    FloatingPointRange,
     Parameter,
-    ParameterDescriptor,
     ParameterType,
     ParameterValue,
     SetParametersResult,
@@ -85,12 +83,17 @@ from clm_core.calibration import BagError, CalibrationError, CalibrationResult, 
 from clm_core.calibration.options import METHODS
 from clm_core.errors import ClmError
 from clm_core.params import PARAMETER_DOCS, SOIL_NAMES
+from clm_core.settings import Setting
+from clm_ros.parameters import NODE_SETTINGS, declare_settings
 
 NODE_NAME = "clm_calibration_node"
 #: Service name, relative to the node (``/clm_calibration_node/calibrate``).
 SERVICE_NAME = "~/calibrate"
 #: Default of the ``push_timeout`` parameter [s].
-DEFAULT_PUSH_TIMEOUT = 10.0
+DEFAULT_PUSH_TIMEOUT: float = NODE_SETTINGS["push_timeout"].default
+#: The ``default_method`` parameter.
+DEFAULT_METHOD: Setting[str] = Setting("default_method", str, "impact", "-",
+                                       "method used when a request leaves 'method' empty", choices=METHODS)
 
 
 class CalibrationCancelled(BaseException):
@@ -276,21 +279,8 @@ class CalibrationNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.declare_parameter(
-            "default_method",
-            "impact",
-            ParameterDescriptor(
-                description=f"method used when a request leaves 'method' empty: {', '.join(METHODS)}"
-            ),
-        )
-        self.declare_parameter(
-            "push_timeout",
-            DEFAULT_PUSH_TIMEOUT,
-            ParameterDescriptor(
-                description="how long a push waits for the target node's parameter service and its answer [s]",
-                floating_point_range=[FloatingPointRange(from_value=0.1, to_value=600.0, step=0.0)],
-            ),
-        )
+        # parameters generated from settings (clm_ros.parameters); the method's choices are clm_core's METHODS
+        declare_settings(self, (DEFAULT_METHOD, "push_timeout"))
         self._check_method(str(self.get_parameter("default_method").value))
         self.add_on_set_parameters_callback(self._on_set_parameters)
 

@@ -29,6 +29,9 @@ from typing import Any
 
 import numpy as np
 
+from clm_core import settings
+from clm_core.peaks import masked_max, peak_window
+from clm_core.progress import Progress
 from clm_ros.errors import ClmRosError
 from clm_ros.processes import hold_domain_id, ros_args, ros_env, stop_processes
 
@@ -42,27 +45,34 @@ TOPICS = {
 
 def run_demo(
     out_dir: str | Path = "results/demo",
-    vehicle: str = "thalys",
-    speed: float = 83.33,
-    duration: float = 3.0,
-    track: str = "mevergnies",
-    soil: str = "mevergnies",
-    model: str = "clm",
-    rate_hz: float = 1000.0,
-    dt: float = 1.0e-4,
-    n_sleepers: int = 61,
-    irregularity: str = "german-low",
-    seed: int = 1,
-    closed_loop: bool = True,
-    storage: str = "mcap",
+    vehicle: str = settings.VEHICLE.default,
+    speed: float = settings.SPEED.default,
+    duration: float = settings.DURATION.default,
+    track: str = settings.TRACK.default,
+    soil: str = settings.SOIL.default,
+    model: str = settings.MODEL.default,
+    rate_hz: float = settings.RATE.default,
+    dt: float = settings.DT.default,
+    n_sleepers: int = settings.N_SLEEPERS.default,
+    irregularity: str = settings.IRREGULARITY.default,
+    seed: int = settings.SEED.default,
+    closed_loop: bool = settings.CLOSED_LOOP.default,
+    storage: str = settings.STORAGE.default,
     domain_id: int | None = None,
     timeout: float = 300.0,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run the demo; return the summary (also written to ``out_dir/summary.json``).
 
-    ``domain_id`` None: a domain held exclusively for the run
-    (:func:`clm_ros.processes.hold_domain_id`).
+    The defaults are the run settings of :mod:`clm_core.settings`. ``domain_id``
+    None: a domain held exclusively for the run
+    (:func:`clm_ros.processes.hold_domain_id`). An existing bag in ``out_dir``
+    is refused unless ``overwrite``. A progress bar shows the recorded wheel-load
+    messages on a terminal.
     """
+    bag = Path(out_dir) / "demo_bag"
+    if bag.exists() and not overwrite:
+        raise ClmRosError(f"{bag}: exists; choose another output directory or pass overwrite (--overwrite)")
     settings = dict(
         out_dir=out_dir, vehicle=vehicle, speed=speed, duration=duration, track=track, soil=soil, model=model,
         rate_hz=rate_hz, dt=dt, n_sleepers=n_sleepers, irregularity=irregularity, seed=seed,
@@ -133,6 +143,7 @@ def _run_demo(
     ctx = Context()
     rclpy.init(context=ctx, domain_id=dom)
     summary: dict[str, Any] = {}
+    bar = Progress(round(duration * rate_hz) + 1, "clm demo", unit="msg")
     try:
         procs["track_node"] = subprocess.Popen(
             [sys.executable, "-m", "clm_ros.track_node", *ros_args(track_params)],
@@ -161,12 +172,14 @@ def _run_demo(
         t0 = time.monotonic()
         while procs["vehicle_node"].poll() is None:
             spin_for(0.05)
+            bar.update_to(rec.counts["/wheel_loads"])
             if procs["track_node"].poll() is not None:
                 raise ClmRosError(
                     f"track node exited early with code {procs['track_node'].returncode}; see {out}/track_node.log"
                 )
             if time.monotonic() - t0 > timeout:
                 raise ClmRosError(f"vehicle node still running after {timeout:g} s; see {out}/vehicle_node.log")
+        bar.close()
         if procs["vehicle_node"].returncode != 0:
             raise ClmRosError(
                 f"vehicle node failed with code {procs['vehicle_node'].returncode}; see {out}/vehicle_node.log"
@@ -183,6 +196,7 @@ def _run_demo(
         summary["message_counts"] = counts
         node.destroy_node()
     finally:
+        bar.close()
         stop_processes(procs.values(), timeout=15)
         for f in logs.values():
             f.close()
@@ -256,19 +270,47 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     grid = np.full((len(s_t), gmax - gmin + 1), np.nan)
     for k, (idx, F) in enumerate(zip(s_idx, s_F)):
         grid[k, idx - gmin] = F
-    peak_k, peak_j = np.unravel_index(np.nanargmax(grid), grid.shape)
+    # reported peaks: over the sleepers the train has passed and the instants after its start (clm_core.peaks)
+    wgrid = np.full_like(grid, np.nan)
+    xg = np.full(grid.shape[1], np.nan)
+    for k, (idx, x, w) in enumerate(zip(s_idx, s_x, s_w)):
+        wgrid[k, idx - gmin] = w
+        xg[idx - gmin] = x
+    spacing = round(float(np.nanmedian(np.diff(xg))), 9) if np.isfinite(np.diff(xg)).any() else 1.0
+    window = peak_window(float(np.nanmax(wheel_x[0])), float(np.nanmin(wheel_x[-1])), spacing)
+    passed = window.sleepers(xg)
+    peak_force, peak_j, fb_force = masked_max(np.nanmax(grid, axis=0), passed)
+    max_defl, _, fb_defl = masked_max(np.nanmax(wgrid, axis=0), passed)
+    peak_k = int(np.nanargmax(grid[:, peak_j]))
     _plot_demo(out, np.array(s_t), t0, grid, gmin, s_x, s_F, s_w, int(peak_k), wheel_t, wheel_F)
     Fw = np.concatenate(wheel_F) if wheel_F else np.zeros(1)
+    nw = max(len(f) for f in wheel_F) if wheel_F else 1
+    Wm = np.full((len(wheel_F), nw), np.nan)
+    for k, f in enumerate(wheel_F):
+        Wm[k, : len(f)] = f
+    front = np.array([np.nanmax(x) if len(x) else np.nan for x in wheel_x])
+    admitted = np.repeat(window.instants(front)[:, None], nw, axis=1)
+    peak_wheel, _, fb_wheel = masked_max(Wm, admitted)
+    t_adm = [t for t, ok in zip(wheel_t, admitted[:, 0]) if ok]
+    exclusion = window.describe(np.arange(gmin, gmax + 1), passed,
+                                instants_from_s=(t_adm[0] - t0) / 1e9 if t_adm else None,
+                                sleepers_fallback=fb_force or fb_defl, instants_fallback=fb_wheel)
+    exclusion["applies_to"] = ["peak_sleeper_soil_force_N", "peak_sleeper_global_index", "max_rail_deflection_m",
+                               "peak_wheel_load_N"]
+    exclusion["whole_run"] = {"peak_sleeper_soil_force_N": float(np.nanmax(grid)),
+                              "max_rail_deflection_m": float(max(np.max(w) for w in s_w)),
+                              "peak_wheel_load_N": float(Fw.max())}
     return {
         "lag_median_s": float(np.median(lags)),
         "lag_p99_s": float(np.percentile(lags, 99)),
         "lag_max_s": float(np.max(lags)),
         "responses": len(s_t),
         "wheel_load_messages": len(wheel_t),
-        "peak_sleeper_soil_force_N": float(np.nanmax(grid)),
+        "peak_sleeper_soil_force_N": peak_force,
         "peak_sleeper_global_index": int(gmin + peak_j),
-        "max_rail_deflection_m": float(max(np.max(w) for w in s_w)),
-        "peak_wheel_load_N": float(Fw.max()),
+        "max_rail_deflection_m": max_defl,
+        "peak_wheel_load_N": peak_wheel,
+        "peak_exclusion": exclusion,
         "rms_wheel_load_N": float(np.sqrt(np.mean(Fw**2))),
         "track_node_diagnostics": diag,
         "plots": ["sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png"],

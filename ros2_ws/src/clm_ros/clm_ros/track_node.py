@@ -31,7 +31,7 @@ import numpy as np
 import rclpy
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.lifecycle import Node as LifecycleNode
@@ -48,19 +48,9 @@ from clm_core.params import (
     load_params_file,
 )
 from clm_ros.conversions import frame_from_msg, rclpy_responses, stamp_ns
+from clm_ros.parameters import declare_model_parameters, declare_settings
 
 NODE_NAME = "clm_track_node"
-
-
-def _desc(
-    text: str, read_only: bool = False, frange: tuple[float, float] | None = None, irange: tuple[int, int] | None = None
-) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=read_only)
-    if frange is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=frange[0], to_value=frange[1], step=0.0)]
-    if irange is not None:
-        d.integer_range = [IntegerRange(from_value=irange[0], to_value=irange[1], step=1)]
-    return d
 
 
 def qos_profile(depth: int, reliability: str) -> QoSProfile:
@@ -77,50 +67,13 @@ class TrackNode(LifecycleNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        dp = self.declare_parameter
-        dp("track", "mevergnies", _desc("track preset or YAML file (rail + track)", read_only=True))
-        dp("soil", "mevergnies", _desc("soil preset or YAML file", read_only=True))
-        dp("model", "clm", _desc(f"foundation model: {', '.join(SOIL_MODELS)}", read_only=True))
-        dp(
-            "params_file",
-            "",
-            _desc("full parameter file (rail, track, soil, overrides); replaces track/soil/model", read_only=True),
-        )
-        dp("dt", 1.0e-4, _desc("integration time step [s]", read_only=True, frange=(1e-6, 1e-2)))
-        dp("n_sleepers", 61, _desc("sleepers in the simulated window [-]", read_only=True, irange=(11, 4001)))
-        dp("elements_per_bay", 2, _desc("rail elements per sleeper bay [-]", read_only=True, irange=(1, 16)))
-        dp(
-            "lead_sleepers",
-            -1,
-            _desc(
-                "sleepers kept ahead of the foremost wheel; -1: a third of the window",
-                read_only=True,
-                irange=(-1, 4000),
-            ),
-        )
-        dp("max_gap", 1.0, _desc("a stamp gap above this re-synchronises the state [s]", frange=(1e-4, 1e6)))
-        dp("accept_new_wheels", False, _desc("accept wheel ids not in the first message (wheels entering)"))
-        dp(
-            "publish_every",
-            1,
-            _desc("publish the response of every N-th accepted message [-] (1: all)", irange=(1, 100000)),
-        )
-        dp(
-            "qos_depth",
-            0,
-            _desc(
-                "keep-last depth of the data topics [-]; 0: keep all (no message dropped)",
-                read_only=True,
-                irange=(0, 100000),
-            ),
-        )
-        dp("qos_reliability", "reliable", _desc("reliable or best_effort", read_only=True))
-        dp("frame_id", "track", _desc("frame id of the output headers"))
-        dp("diagnostics_period", 1.0, _desc("period of /diagnostics [s]", read_only=True, frange=(0.01, 3600.0)))
-        dp("autostart", True, _desc("configure and activate at start", read_only=True))
+        # parameters generated from the run-settings schema (clm_core.settings, clm_ros.parameters)
+        declare_settings(self, ("track", "soil", "model", "params_file", "dt", "n_sleepers", "elements_per_bay",
+                                "lead_sleepers", "max_gap", "accept_new_wheels"))
+        declare_settings(self, ("publish_every", "qos_depth", "qos_reliability", "frame_id", "diagnostics_period",
+                                "autostart"))
         # every scalar model parameter, NaN = take it from the preset / file
-        for name, (section, unit, text) in PARAMETER_DOCS.items():
-            dp(f"{section}.{name}", math.nan, _desc(f"{text} [{unit}]; NaN: from the preset or parameter file"))
+        declare_model_parameters(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self.model: OnlineTrackModel | None = None

@@ -18,7 +18,6 @@ track's answers to every message, logs the counts and exits 0.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import threading
 import time
@@ -27,7 +26,6 @@ from typing import Any
 import numpy as np
 import rclpy
 from clm_msgs.msg import WheelLoads, WheelRailResponse
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -35,24 +33,14 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from clm_core.errors import ClmError
-from clm_core.params import SOIL_MODELS, load_model, load_params_file
-from clm_core.vehicle.cli_support import build_run
+from clm_core.params import load_model, load_params_file
+from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
 from clm_ros.conversions import rclpy_wheel_loads, stamp_ns
+from clm_ros.parameters import declare_settings
 
 NODE_NAME = "clm_vehicle_node"
 NS = 1_000_000_000
-
-
-def _desc(
-    text: str, frange: tuple[float, float] | None = None, irange: tuple[int, int] | None = None
-) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=True)
-    if frange:
-        d.floating_point_range = [FloatingPointRange(from_value=frange[0], to_value=frange[1], step=0.0)]
-    if irange:
-        d.integer_range = [IntegerRange(from_value=irange[0], to_value=irange[1], step=1)]
-    return d
 
 
 class VehicleNode(Node):
@@ -60,58 +48,24 @@ class VehicleNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        dp = self.declare_parameter
-        dp("vehicle", "thalys", _desc("vehicle preset or YAML file"))
-        dp("cars", 1, _desc("number of cars of the preset's composition [-]", irange=(1, 20)))
-        dp("speed", 83.33, _desc("train speed [m/s]", frange=(0.0, 150.0)))
-        dp("duration", 3.0, _desc("simulated time to run [s]", frange=(1e-3, 3600.0)))
-        dp("rate", 1000.0, _desc("wheel-load publication rate [Hz]", frange=(1.0, 10000.0)))
-        dp("dt", 1.0e-4, _desc("vehicle integration time step [s]; rate * dt must divide 1", frange=(1e-6, 1e-2)))
-        dp("start", 30.0, _desc("position of the first wheel at t = 0 [m]", frange=(-1e7, 1e7)))
-        dp("irregularity", "fra5", _desc("none, fra1..fra6, german-low, german-high or a CSV profile file"))
-        dp("seed", 1, _desc("random seed of the irregularity [-]", irange=(0, 2**31 - 1)))
-        dp("wavelength_band", "1,50", _desc("irregularity wavelength band [m], 'min,max'"))
-        dp("track", "mevergnies", _desc("track preset (for the rail compliance under the wheels)"))
-        dp("soil", "mevergnies", _desc("soil preset"))
-        dp("model", "clm", _desc(f"soil model: {', '.join(SOIL_MODELS)}"))
-        dp("params_file", "", _desc("full parameter file (replaces track/soil/model)"))
-        dp("closed_loop", True, _desc("use the track node's rail deflection under the wheels"))
-        dp("publish_clock", False, _desc("publish /clock and stamp with simulation time from 0"))
-        dp(
-            "wait_for_subscribers",
-            1,
-            _desc("subscribers of wheel_loads to wait for before starting [-]", irange=(0, 100)),
-        )
-        dp("discovery_timeout", 30.0, _desc("how long to wait for them [s]", frange=(0.0, 3600.0)))
-        dp(
-            "ack_timeout",
-            10.0,
-            _desc("after the run, wait this long for the track's answers [s]", frange=(0.0, 3600.0)),
-        )
-        dp("frame_id", "track", _desc("frame id of the headers"))
-        dp(
-            "max_feedback_delay",
-            0.02,
-            _desc("closed loop: ignore track answers older than this [s] (counted)", frange=(0.0, 10.0)),
-        )
+        # parameters generated from the run-settings schema (clm_core.settings, clm_ros.parameters); the run is
+        # built once, at start: every parameter is read-only
+        declare_settings(self, ("vehicle", "cars", "speed", "duration", "rate", "dt", "start", "irregularity", "seed",
+                                "wavelength_band", "track", "soil", "model", "params_file", "closed_loop"),
+                         read_only=True)
+        declare_settings(self, ("publish_clock", "wait_for_subscribers", "discovery_timeout", "ack_timeout",
+                                "frame_id", "max_feedback_delay"), read_only=True)
         g = lambda n: self.get_parameter(n).value  # noqa: E731
         params = (
             load_params_file(g("params_file")) if g("params_file") else load_model(g("track"), g("soil"), g("model"))
         )
-        ns = argparse.Namespace(
-            vehicle=g("vehicle"),
-            cars=int(g("cars")),
-            speed=float(g("speed")),
-            duration=float(g("duration")),
-            dt=float(g("dt")),
-            start=float(g("start")),
-            irregularity=g("irregularity"),
-            seed=int(g("seed")),
+        spec = VehicleRunSpec(
+            vehicle=g("vehicle"), cars=int(g("cars")), speed=float(g("speed")), duration=float(g("duration")),
+            dt=float(g("dt")), start=float(g("start")), irregularity=g("irregularity"), seed=int(g("seed")),
             wavelength_band=g("wavelength_band"),
-            defect=[],
-            train=None,
         )
-        sim, duration, self.settings = build_run(ns, params)
+        run = build_vehicle_run(spec, params)
+        sim, duration, self.settings = run.simulation, run.duration, run.settings
         rate = float(g("rate"))
         sub = 1.0 / (rate * sim.dt)
         if abs(sub - round(sub)) > 1e-9 or round(sub) < 1:

@@ -23,12 +23,18 @@ def register(sub: Any) -> None:
     r.add_argument("--count", type=int, default=None, help="stop after this many messages on the first topic")
     r.add_argument("--discovery-timeout", type=float, default=20.0, help="wait for topic types [s]")
     r.set_defaults(func=run_record)
-    p = sub.add_parser("play", help="publish a bag's messages (real time, scaled, or flow-controlled)")
-    p.add_argument("bag")
+    p = sub.add_parser(
+        "play", help="publish a bag's messages (real time, scaled, or flow-controlled)",
+        description="Publishes the messages of a rosbag2 bag (mcap or sqlite3) on their topics, with their "
+        "recorded timing (--rate 1), scaled (--rate 2: twice as fast), or as fast as a node answers them "
+        "(--rate 0: at most --max-in-flight messages without an answer on --ack-topic). Prints the counts sent.",
+    )
+    p.add_argument("bag", help="rosbag2 bag (directory, .mcap or .db3)")
     p.add_argument("--topics", nargs="*", default=None, help="topics to play (default all)")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor (1 real time; 0 as fast as answered)")
     p.add_argument("--ack-topic", default="/sleeper_response", help="answers for --rate 0 flow control")
-    p.add_argument("--max-in-flight", type=int, default=20)
+    p.add_argument("--max-in-flight", type=int, default=20,
+                   help="--rate 0: messages published ahead of their answers (default 20)")
     p.set_defaults(func=run_play)
 
 

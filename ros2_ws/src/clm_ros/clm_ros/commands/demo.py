@@ -1,10 +1,15 @@
-"""``clm demo``: the end-to-end ROS demo (vehicle node + track node over DDS, bag, plots)."""
+"""``clm demo``: the end-to-end ROS demo (vehicle node + track node over DDS, bag, plots).
+
+Its options and their defaults are the run settings of :mod:`clm_core.settings`
+(the same as the vehicle node's and ``clm simulate --vehicle``'s).
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any
+
+from clm_core.commands._options import add_overwrite, add_setting
 
 
 def register(sub: Any) -> None:
@@ -16,31 +21,20 @@ def register(sub: Any) -> None:
         "processes (loopback DDS), records the run to a bag and renders plots in --out.",
     )
     p.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
-    p.add_argument("--vehicle", default="thalys")
-    p.add_argument("--speed", type=float, default=83.33, help="[m/s] (default 83.33 = 300 km/h)")
-    p.add_argument("--duration", type=float, default=3.0, help="simulated seconds (default 3)")
-    p.add_argument("--track", default="mevergnies")
-    p.add_argument("--soil", default="mevergnies")
-    p.add_argument("--model", default="clm")
-    p.add_argument("--rate", type=float, default=1000.0, help="wheel-load rate [Hz] (default 1000)")
-    p.add_argument("--dt", type=float, default=1e-4, help="track time step [s]")
-    p.add_argument("--sleepers", type=int, default=61, help="track window [sleepers]")
-    p.add_argument(
-        "--irregularity",
-        default="german-low",
-        help="rail irregularity: none, fra1..fra6, german-low, german-high or a CSV (default german-low, "
-        "a high-speed line)",
-    )
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--open-loop", action="store_true", help="vehicle on the quasi-static track (no feedback)")
-    p.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])
+    for name in ("vehicle", "speed", "duration", "track", "soil", "model", "rate", "dt", "n_sleepers",
+                 "irregularity", "seed", "closed_loop", "storage"):
+        add_setting(p, name)
+    p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
+    add_overwrite(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo and print its summary."""
+    from clm_core.commands._common import check_output, quantity
     from clm_ros.launcher import run_demo
 
+    check_output(args.out, args.overwrite)
     s = run_demo(
         args.out,
         vehicle=args.vehicle,
@@ -51,22 +45,18 @@ def run(args: argparse.Namespace) -> int:
         model=args.model,
         rate_hz=args.rate,
         dt=args.dt,
-        n_sleepers=args.sleepers,
+        n_sleepers=args.n_sleepers,
         irregularity=args.irregularity,
         seed=args.seed,
-        closed_loop=not args.open_loop,
+        closed_loop=args.closed_loop,
         storage=args.storage,
+        overwrite=args.overwrite,
     )
-    keys = [
-        "message_counts",
-        "lag_median_s",
-        "lag_p99_s",
-        "peak_sleeper_soil_force_N",
-        "max_rail_deflection_m",
-        "peak_wheel_load_N",
-        "rms_wheel_load_N",
-        "bag",
-    ]
-    print(json.dumps({k: s[k] for k in keys}, indent=2))
-    print(f"demo: bag and plots in {args.out}/")
+    counts = s["message_counts"]
+    print(f"demo: {counts.get('/wheel_loads', 0)} wheel-load messages, {counts.get('/sleeper_response', 0)} "
+          f"responses; lag median {quantity(s['lag_median_s'], 's')}, p99 {quantity(s['lag_p99_s'], 's')}")
+    print(f"demo: peak sleeper soil force {quantity(s['peak_sleeper_soil_force_N'], 'N')}, max rail deflection "
+          f"{quantity(s['max_rail_deflection_m'], 'm')}, peak wheel load {quantity(s['peak_wheel_load_N'], 'N')}, "
+          f"rms wheel load {quantity(s['rms_wheel_load_N'], 'N')}")
+    print(f"demo: bag {s['bag']}, plots and summary.json in {args.out}/")
     return 0

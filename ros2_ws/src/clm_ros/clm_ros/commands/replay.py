@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
-from clm_core.commands._common import add_model_arguments, model_from_args
+from clm_core.commands._common import add_model_arguments, add_window_arguments, model_from_args, quantity
+from clm_core.commands._options import add_overwrite, add_setting
 
 
 def register(sub: Any) -> None:
@@ -20,64 +20,71 @@ def register(sub: Any) -> None:
         "and the sleeper and wheel-rail responses.",
     )
     p.add_argument("in_bag", help="input rosbag2 bag (directory, .mcap or .db3)")
-    p.add_argument("--out", required=True, help="output bag directory (must not exist)")
+    p.add_argument("--out", required=True, help="output bag directory (must not exist, or --overwrite)")
     p.add_argument("--topic", default=None, help="wheel-load topic (default: the only WheelLoads topic)")
-    p.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"], help="output storage (default mcap)")
-    add_model_arguments(p, sleepers_default=61)
-    p.add_argument("--dt", type=float, default=1e-4, help="time step [s] (default 1e-4)")
-    p.add_argument("--max-gap", type=float, default=1.0, help="stamp gap that re-synchronises [s] (default 1)")
-    p.add_argument("--accept-new-wheels", action="store_true", help="accept wheel ids not in the first message")
-    p.add_argument("--lead-sleepers", type=int, default=None, help="sleepers kept ahead of the foremost wheel")
+    add_setting(p, "storage")
+    add_model_arguments(p)
+    add_window_arguments(p)
+    for name in ("dt", "max_gap", "accept_new_wheels", "lead_sleepers"):
+        add_setting(p, name)
+    add_overwrite(p, "the output bag")
     p.set_defaults(func=run)
 
 
+def _message_count(path: str, topic: str | None) -> int | None:
+    """Number of wheel-load messages in the bag (from its index), or None if it cannot be told."""
+    from clm_ros.replay import WHEEL_LOADS, open_reader
+
+    try:
+        reader = open_reader(path)
+    except Exception:
+        return None  # replay_bag reports the error
+    try:
+        return sum(c.msgcount for c in reader.connections
+                   if c.msgtype == WHEEL_LOADS and (topic is None or c.topic == topic)) or None
+    finally:
+        reader.close()
+
+
 def run(args: argparse.Namespace) -> int:
-    """Replay and print a JSON summary."""
+    """Replay and print a one-line summary."""
+    import shutil
+    from pathlib import Path
+
+    from clm_core.commands._common import remove_bag
     from clm_core.online import OnlineTrackModel
+    from clm_core.progress import Progress
     from clm_ros.errors import ClmRosError
     from clm_ros.replay import replay_bag
 
+    out = Path(args.out)
+    if out.exists():
+        if not args.overwrite:
+            print(f"clm replay: error: --out {out}: exists; choose a new path or pass --overwrite", file=sys.stderr)
+            return 2
+        remove_bag(out, "--out")
     params = model_from_args(args)
     model = OnlineTrackModel(
         params,
         dt=args.dt,
-        n_sleepers=args.sleepers,
+        n_sleepers=args.n_sleepers,
         elements_per_bay=args.elements_per_bay,
         max_gap=args.max_gap,
         accept_new_wheels=args.accept_new_wheels,
         lead_sleepers=args.lead_sleepers,
     )
-    bar: Any = None
-    if sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(unit="msg", desc="replay")
     try:
-        stats = replay_bag(
-            args.in_bag,
-            args.out,
-            model,
-            topic=args.topic,
-            storage=args.storage,
-            progress=(lambda n: bar.update(1)) if bar else None,
-        )
-    except ClmRosError as exc:
-        print(f"clm replay: error: {exc}", file=sys.stderr)
-        return 2
-    finally:
-        if bar is not None:
-            bar.close()
-    print(
-        json.dumps(
-            {
-                "read": stats.read,
-                "accepted": stats.accepted,
-                "written": stats.written,
-                "rejected": dict(stats.rejected),
-                "sim_time_s": stats.sim_time_s,
-                "wall_time_s": stats.wall_time_s,
-                "real_time_factor": stats.real_time_factor,
-            }
-        )
-    )
+        with Progress(_message_count(args.in_bag, args.topic), "clm replay", unit="msg") as bar:
+            stats = replay_bag(args.in_bag, out, model, topic=args.topic, storage=args.storage,
+                               progress=bar.update_to)
+    except BaseException as exc:
+        shutil.rmtree(out, ignore_errors=True)  # no partial output bag
+        if isinstance(exc, ClmRosError):
+            print(f"clm replay: error: {exc}", file=sys.stderr)
+            return 2
+        raise
+    rejected = ", ".join(f"{n} {k}" for k, n in sorted(stats.rejected.items())) or "none"
+    print(f"replay: {stats.read} wheel-load messages read, {stats.accepted} accepted, rejected: {rejected}; "
+          f"{quantity(stats.sim_time_s, 's')} simulated in {quantity(stats.wall_time_s, 's')} "
+          f"(real-time factor {quantity(stats.real_time_factor, '', 3)}) -> {out}")
     return 0

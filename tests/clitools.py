@@ -1,0 +1,60 @@
+"""Running the ``clm`` command as a user does: in a subprocess, or in a pseudo-terminal.
+
+A pseudo-terminal makes stderr a TTY, so the command shows its progress bars
+(tqdm) exactly as in an interactive shell: the replay crash on a bar without a
+total (issue 13) only happened there.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import pty
+import select
+import struct
+import subprocess
+import sys
+import termios
+import time
+from collections.abc import Mapping, Sequence
+
+CLM = [sys.executable, "-m", "clm_core.cli"]
+
+
+def run_clm(args: Sequence[str], env: Mapping[str, str] | None = None, timeout: float = 600.0,
+            cwd: str | None = None) -> subprocess.CompletedProcess[str]:
+    """``clm ARGS`` in a subprocess with pipes (no terminal)."""
+    return subprocess.run([*CLM, *args], capture_output=True, text=True, env=None if env is None else dict(env),
+                          timeout=timeout, cwd=cwd)
+
+
+def run_in_pty(argv: Sequence[str], env: Mapping[str, str] | None = None, timeout: float = 600.0,
+               cwd: str | None = None) -> tuple[int, str]:
+    """Run ``argv`` with stdin, stdout and stderr on a pseudo-terminal (80 x 24); return (exit code, output)."""
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    proc = subprocess.Popen(list(argv), stdin=slave, stdout=slave, stderr=slave, close_fds=True,
+                            env=None if env is None else dict(env), cwd=cwd)
+    os.close(slave)
+    chunks: list[bytes] = []
+    deadline = time.monotonic() + timeout
+    try:
+        while True:
+            if time.monotonic() > deadline:
+                proc.kill()
+                raise TimeoutError(f"{argv!r} still running after {timeout} s:\n" + b"".join(chunks).decode())
+            ready, _, _ = select.select([master], [], [], 0.2)
+            if ready:
+                try:
+                    data = os.read(master, 65536)
+                except OSError:  # EIO: every writer closed the terminal
+                    break
+                if not data:
+                    break
+                chunks.append(data)
+            elif proc.poll() is not None:
+                break
+        proc.wait(timeout=30)
+    finally:
+        os.close(master)
+    return proc.returncode, b"".join(chunks).decode(errors="replace")
