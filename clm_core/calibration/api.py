@@ -10,7 +10,6 @@ directory; the ROS service is a thin wrapper around the same call.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -34,6 +33,7 @@ from clm_core.calibration.receptance import DEFAULT_FIT, TrackFit, fit_receptanc
 from clm_core.calibration.signals import Recording
 from clm_core.calibration.spectra import TransferData, WindowSpec, transfer_functions
 from clm_core.errors import ParameterError
+from clm_core.io.history import dumps_json
 from clm_core.params import ModelParams, SoilParams, load_model, load_params_file
 from clm_core.track import assemble
 
@@ -208,8 +208,8 @@ class CalibrationResult:
         return out
 
     def summary_json(self) -> str:
-        """:meth:`summary` as JSON text."""
-        return json.dumps(self.summary(), indent=2)
+        """:meth:`summary` as strict JSON text (:func:`clm_core.io.history.dumps_json`)."""
+        return dumps_json(self.summary())
 
 
 def _num(x: float) -> float | None:

@@ -6,19 +6,18 @@
   is refused unless ``--overwrite``; a run that fails removes the directory it
   created, so no empty or half-written output is left behind;
 - :func:`quantity`: numbers on the final lines, with units and 4 significant
-  digits (``40.99 kN``, ``1.443 mm``);
-- :func:`write_json`.
+  digits (``40.99 kN``, ``1.443 mm``).
+
+JSON files are written by :func:`clm_core.io.history.write_json` (the one JSON helper).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 from clm_core.commands._options import add_setting
 from clm_core.errors import InputError
@@ -134,18 +133,3 @@ def quantity(value: float | None, unit: str = "", digits: int = 4) -> str:
         if abs(v) >= scale or scale == _PREFIXES[unit][-1][0]:
             return f"{v / scale:.{digits}g} {name}"
     return f"{v:.{digits}g} {unit}".strip()
-
-
-def _jsonable(o: Any) -> Any:
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def write_json(path: Path, data: dict[str, Any]) -> None:
-    """Write ``data`` as indented JSON (numpy values converted)."""
-    path.write_text(json.dumps(data, indent=2, default=_jsonable) + "\n")

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from clm_core.commands._common import add_model_arguments, model_from_args, output_dir, write_json
+from clm_core.commands._common import add_model_arguments, model_from_args, output_dir
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError
 from clm_core.params import ModelParams
@@ -74,7 +74,8 @@ def receptance_report(
     import numpy as np
 
     from clm_core.frequency import receptance
-    from clm_core.report import plot_receptance
+    from clm_core.io.history import write_json
+    from clm_core.io.plots import plot_receptance
     from clm_core.track import assemble
 
     check_band(fmin, fmax, df, sleepers)

@@ -2,7 +2,9 @@
 
 The receptance of every track on every soil preset (rigid, Lysmer, CLM) and
 the CLM soil chain of every soil, written to ``--out`` with an
-``index.json`` of the resonance peaks and delays. Part of ``scripts/demo.sh``.
+``index.json`` of the resonance peaks and delays and an ``index.html``
+linking every figure and summary (:mod:`clm_core.io.report_index`). Part of
+``scripts/demo.sh``.
 The reports are computed by the same functions as ``clm receptance`` and
 ``clm soil-chain`` (:func:`~clm_core.commands.receptance.receptance_report`,
 :func:`~clm_core.commands.soil_chain.soil_chain_report`), called directly.
@@ -13,7 +15,7 @@ from __future__ import annotations
 import argparse
 from typing import Any, cast
 
-from clm_core.commands._common import output_dir, write_json
+from clm_core.commands._common import output_dir
 from clm_core.commands._options import add_overwrite
 
 
@@ -34,6 +36,8 @@ def run(args: argparse.Namespace) -> int:
     """Write every receptance and soil-chain report; return the exit code."""
     from clm_core.commands.receptance import receptance_report
     from clm_core.commands.soil_chain import shear_wave_speed, soil_chain_report, soil_from_args
+    from clm_core.io.history import write_json
+    from clm_core.io.report_index import write_index
     from clm_core.params import SoilModel, list_presets, load_model
     from clm_core.progress import Progress
 
@@ -58,5 +62,7 @@ def run(args: argparse.Namespace) -> int:
             index[name] = {k: s[k] for k in ("measured_delay_s", "eq21_delay_s", "eq23_delay_s")}
             bar.update()
         write_json(out / "index.json", index)
-    print(f"report: {len(index)} reports in {out}/ (index.json lists the peaks and delays)")
+        html = write_index(out, title="clm report: receptances and soil chains of every preset")
+    print(f"report: {len(index)} reports in {out}/ (index.json lists the peaks and delays; {html.name} links "
+          "every figure and summary)")
     return 0

@@ -6,7 +6,7 @@ time history (``--loads-file``, CSV, format in
 (``--vehicle``, :mod:`clm_core.vehicle.run`) drive the streaming simulator
 (:class:`clm_core.stepper.TrackSimulator`, a window of sleepers that follows
 the wheels). Writes to ``--out``: ``history.npz``, ``sleepers.csv``,
-``wheels.csv``, ``peaks.csv`` (layout in :mod:`clm_core.results`),
+``wheels.csv``, ``peaks.csv`` (layouts in :mod:`clm_core.io.history`),
 ``simulate.png`` and ``summary.json``. Every option and its default comes from
 the run-settings schema (:mod:`clm_core.settings`); the reported peaks exclude
 the start-up transient and the sleepers not fully passed
@@ -27,7 +27,6 @@ from clm_core.commands._common import (
     model_from_args,
     output_dir,
     quantity,
-    write_json,
 )
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import InputError
@@ -126,9 +125,10 @@ def run(args: argparse.Namespace) -> int:
 def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: float) -> int:
     import numpy as np
 
+    from clm_core.io.history import HistoryWriter, write_json
+    from clm_core.io.plots import plot_run
     from clm_core.peaks import BlockPeaks, masked_max, peak_window
     from clm_core.progress import Progress
-    from clm_core.results import HistoryWriter, plot_run
     from clm_core.stepper import LoadTable, TrackSimulator
 
     d = params.track.spacing
@@ -316,7 +316,7 @@ def _write_bag(d_out: Path, storage: str) -> None:
         from clm_ros.history_bag import write_history_bag  # noqa: TID251 - moves into clm_core.io on p1-io (H2)
     except ImportError as exc:
         raise InputError(f"--bag needs the ROS layer (clm_ros, clm_msgs): {exc}; run scripts/bootstrap.sh") from None
-    from clm_core.results import load_history
+    from clm_core.io.history import load_history
 
     bag = d_out / "bag"
     if bag.exists():  # --overwrite (output_dir refused it otherwise)

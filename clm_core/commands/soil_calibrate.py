@@ -31,6 +31,7 @@ import yaml
 from clm_core.commands._common import check_output, output_dir, quantity, remove_bag
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError, PresetError
+from clm_core.io.history import write_json
 
 HELP = "fit CLM soil parameters to a rigorous half-space computation of a soil profile"
 
@@ -106,71 +107,6 @@ def _preset_clm(spec: str) -> dict[str, float] | None:
         return {k: float(clm[k]) for k in ("mf", "kf", "df", "kc", "dc") if k in clm}
     except (TypeError, ValueError):
         return None
-
-
-def _plots(cal: Any, out: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    f = cal.freqs
-    fit = cal.fit
-    n_areas = cal.row.geometry.n_areas
-    clm = cal.clm_response()
-    j = np.arange(n_areas) - n_areas // 2
-    sign = np.where(j % 2 == 0, 1.0, -1.0)
-    S_clm = 1.0 / clm.sum(axis=1)
-    A_clm = 1.0 / (clm * sign).sum(axis=1)
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
-    for col, (name, ref, formula, chain) in enumerate(
-        (
-            ("F / sum X_j  (Eq. 16)", cal.total_sum, fit.total_sum(f), S_clm),
-            ("F / sum (-1)^j X_j  (Eq. 18)", cal.alternating_sum, fit.alternating_sum(f), A_clm),
-        )
-    ):
-        for row, part in enumerate(("real", "imag")):
-            ax = axes[row, col]
-            get = np.real if part == "real" else np.imag
-            ax.plot(f, get(ref) / 1e6, "k-", label="rigorous (BEM)")
-            ax.plot(f, get(formula) / 1e6, "r--", label="CLM formula")
-            ax.plot(f, get(chain) / 1e6, "b:", label=f"CLM chain, N = {n_areas}")
-            ax.axvspan(fit.band[0], fit.band[1], color="0.9", zorder=0)
-            ax.set_ylabel(f"{'Re' if part == 'real' else 'Im'} [MN/m]")
-            if row == 0:
-                ax.set_title(name)
-            if row == 1:
-                ax.set_xlabel("frequency [Hz]")
-            ax.grid(True, alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle(f"{cal.profile.name}: fit band {fit.band[0]:g}-{fit.band[1]:g} Hz (shaded), norm '{fit.norm}'")
-    fig.tight_layout()
-    p1 = out / "sums.png"
-    fig.savefig(p1, dpi=110)
-    plt.close(fig)
-    fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
-    c = n_areas // 2
-    for k, colr in zip(range(3), ("k", "r", "b"), strict=False):
-        if c + k >= n_areas:
-            break
-        ref = cal.row.centre_column[:, c + k]
-        mod = clm[:, c + k]
-        axes[0].semilogy(f, np.abs(ref), colr + "-", label=f"area {k}: rigorous")
-        axes[0].semilogy(f, np.abs(mod), colr + "--", label=f"area {k}: CLM")
-        axes[1].plot(f, np.degrees(np.unwrap(np.angle(ref))), colr + "-")
-        axes[1].plot(f, np.degrees(np.unwrap(np.angle(mod))), colr + "--")
-    axes[0].set_ylabel("|X_j / F| [m/N]")
-    axes[1].set_ylabel("phase [deg]")
-    axes[1].set_xlabel("frequency [Hz]")
-    axes[0].legend(fontsize=8, ncol=3)
-    for ax in axes:
-        ax.grid(True, alpha=0.3)
-    axes[0].set_title(f"{cal.profile.name}: receptances of the loaded area (0) and its neighbours")
-    fig.tight_layout()
-    p2 = out / "receptances.png"
-    fig.savefig(p2, dpi=110)
-    plt.close(fig)
-    return [p1.name, p2.name]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -251,9 +187,11 @@ def _write(args: argparse.Namespace, profile: Any, cal: Any, out: Path) -> None:
     )
     files = ["soil.yaml", "summary.json", "sweep.npz"]
     if not args.no_plots:
-        files += _plots(cal, out)
+        from clm_core.io.plots import plot_soil_calibration
+
+        files += plot_soil_calibration(cal, out)
     summary["files"] = files
-    (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    write_json(out / "summary.json", summary)
 
 
 # ----------------------------------------------------------------------------- --impact-bag (issue 7)
@@ -351,7 +289,7 @@ def run(args: argparse.Namespace) -> int:  # type: ignore[no-redef]
         "seed": args.bag_seed,
         "fs_hz": IMPACT_BAG_FS,
     }
-    summary_path.write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    write_json(summary_path, summary)
     size = sum(p.stat().st_size for p in bag.path.iterdir())
     snr = "noise-free" if args.bag_snr is None else f"SNR {args.bag_snr:g} dB"
     print(

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any, cast
 
-from clm_core.commands._common import output_dir, quantity, write_json
+from clm_core.commands._common import output_dir, quantity
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError
 from clm_core.params import SOIL_MODELS, SoilModel, SoilParams
@@ -86,7 +86,8 @@ def soil_chain_report(
     """
     import numpy as np
 
-    from clm_core.report import plot_chain
+    from clm_core.io.history import write_json
+    from clm_core.io.plots import plot_chain
     from clm_core.soil.chain import chain_frequency_response, chain_sums, chain_time_response
     from clm_core.soil.formulas import (
         alternating_sum_impedance,

@@ -19,8 +19,6 @@ impact
 run
     The typed vehicle-run builder (:class:`VehicleRunSpec` -> simulation) of ``clm simulate
     --vehicle`` and the vehicle node.
-cli_support
-    Output files and plots of a vehicle run.
 reference_track
     A fixed-window reference engine with the streaming engine's coupling API.
 

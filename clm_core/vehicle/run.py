@@ -11,13 +11,12 @@ for 3 s with dt = 1e-4 s.
     run = build_vehicle_run(spec, load_model("mevergnies", "mevergnies", "clm"))
     result = run.simulation.run(run.duration)
 
-:func:`run_vehicle` also writes the outputs (:mod:`clm_core.vehicle.cli_support`
-writers) and returns the summary.
+:func:`run_vehicle` also writes the outputs (:func:`clm_core.io.history.write_coupled_history`,
+:func:`clm_core.io.plots.plot_vehicle_run`) and returns the summary.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -274,7 +273,7 @@ def run_vehicle(
     out_dir : str or Path
         Output directory (created): ``vehicle_history.npz``, ``wheels.csv``,
         ``sleepers.csv``, ``peaks.csv``, plots and ``summary.json``
-        (layout in :mod:`clm_core.vehicle.cli_support`).
+        (layouts in :mod:`clm_core.io.history`).
     csv_files : bool
         Also write the CSV files.
     progress : bool
@@ -290,7 +289,8 @@ def run_vehicle(
         the stepping), ``peak_exclusion`` (which part of the run the peaks come
         from) and ``settings``.
     """
-    from clm_core.vehicle.cli_support import _jsonable, write_outputs
+    from clm_core.io.history import write_coupled_history, write_json
+    from clm_core.io.plots import plot_vehicle_run
 
     run = build_vehicle_run(spec, params)
     sim = run.simulation
@@ -301,8 +301,8 @@ def run_vehicle(
     summary.update({"settings": run.settings})
     summary["sleeper_passing_frequency_Hz"] = sim.speed / params.track.spacing if sim.speed > 0 else None
     s = run.settings
-    write_outputs(res, out, csv_files=csv_files,
-                  title=f"{s['vehicle']} x{len(s['cars'])}, {sim.speed:g} m/s, {s['model']}, "
-                        f"irregularity {s['irregularity']}")
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_jsonable) + "\n")
+    write_coupled_history(res, out, csv_files=csv_files)
+    plot_vehicle_run(res, out, title=f"{s['vehicle']} x{len(s['cars'])}, {sim.speed:g} m/s, {s['model']}, "
+                     f"irregularity {s['irregularity']}")
+    write_json(out / "summary.json", summary)
     return summary

@@ -52,7 +52,6 @@ method: impact}"``.
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import threading
@@ -82,6 +81,7 @@ from rclpy.validate_full_topic_name import validate_full_topic_name
 from clm_core.calibration import BagError, CalibrationError, CalibrationResult, calibrate
 from clm_core.calibration.options import METHODS
 from clm_core.errors import ClmError
+from clm_core.io.history import dumps_json
 from clm_core.params import PARAMETER_DOCS, SOIL_NAMES
 from clm_core.settings import Setting
 from clm_ros.parameters import NODE_SETTINGS, declare_settings
@@ -233,25 +233,6 @@ def _one_line(text: str) -> str:
     return " ".join(text.split())
 
 
-def _json_safe(obj: Any) -> Any:
-    """Recursively replace non-finite floats by None and numpy scalars/arrays by plain values."""
-    if isinstance(obj, Mapping):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):
-        return _json_safe(obj.tolist())
-    if isinstance(obj, bool) or obj is None or isinstance(obj, (str, int)):
-        return obj
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    try:
-        v = float(obj)
-    except (TypeError, ValueError):
-        return str(obj)
-    return v if math.isfinite(v) else None
-
-
 def fit_message(result: CalibrationResult) -> str:
     """One-line description of a fit: method, model, band, norm, values, misfit, warnings."""
     vals = ", ".join(f"{p.name} = {p.value:.4g} {p.unit}".rstrip() for p in result.parameters)
@@ -356,7 +337,7 @@ class CalibrationNode(Node):
             self.get_logger().warning(message)
         response.success = False
         response.message = message
-        response.metrics_json = json.dumps(_json_safe({"error": message, **(extra or {})}))
+        response.metrics_json = dumps_json({"error": message, **(extra or {})}, indent=None)
         return response
 
     def _calibrate_and_push(self, request: Calibrate.Request, response: Calibrate.Response,
@@ -414,7 +395,7 @@ class CalibrationNode(Node):
                 )
         else:
             metrics["push"] = {"requested": False}
-        response.metrics_json = json.dumps(_json_safe(metrics), indent=1)
+        response.metrics_json = dumps_json(metrics, indent=1)
         response.success = success
         response.message = _one_line(message)
         log = self.get_logger().info if success else self.get_logger().warning

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from rosbags.rosbag2 import Writer
 
-from clm_core.results import TimeHistory
+from clm_core.io.history import TimeHistory
 from clm_ros.errors import ClmRosError
 from clm_ros.msg_types import typestore
 from clm_ros.replay import storage_plugin

@@ -8,10 +8,13 @@
 3. records ``/wheel_loads``, ``/sleeper_response``, ``/wheel_rail_response``
    and ``/diagnostics`` to a rosbag2 bag (mcap) in the output directory;
 4. when the vehicle has finished its run and every wheel-load message has
-   been answered, stops the nodes and renders the plots (sleeper soil forces
-   over time, rail deflection along the track at the moment of maximum,
-   wheel loads) to PNG, and writes ``summary.json`` (message counts, lag
-   median and 99th percentile from the recorded receive times, peaks).
+   been answered, stops the nodes and renders the plots
+   (:func:`clm_core.io.plots.plot_demo`: sleeper soil forces over time, rail
+   deflection and soil force along the track at the moment of the peak soil
+   force, one panel per wheel of the wheel loads) to PNG, writes
+   ``summary.json`` (message counts, lag median and 99th percentile from the
+   recorded receive times, peaks) and ``index.html`` linking them
+   (:func:`clm_core.io.report_index.write_index`).
 
 Users with a full ROS install get the same graph from
 ``ros2 launch clm_ros demo.launch.py``.
@@ -19,7 +22,6 @@ Users with a full ROS install get the same graph from
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -30,6 +32,8 @@ from typing import Any
 import numpy as np
 
 from clm_core import settings
+from clm_core.io.history import write_json
+from clm_core.io.report_index import write_index
 from clm_core.peaks import masked_max, peak_window
 from clm_core.progress import Progress
 from clm_ros.errors import ClmRosError
@@ -220,7 +224,8 @@ def _run_demo(
             "ros_domain_id": dom,
         }
     )
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out / "summary.json", summary)
+    write_index(out, title=f"clm demo: {vehicle} at {speed:g} m/s on {track} / {soil} ({model})")
     return summary
 
 
@@ -282,12 +287,25 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     peak_force, peak_j, fb_force = masked_max(np.nanmax(grid, axis=0), passed)
     max_defl, _, fb_defl = masked_max(np.nanmax(wgrid, axis=0), passed)
     peak_k = int(np.nanargmax(grid[:, peak_j]))
-    _plot_demo(out, np.array(s_t), t0, grid, gmin, s_x, s_F, s_w, int(peak_k), wheel_t, wheel_F)
     Fw = np.concatenate(wheel_F) if wheel_F else np.zeros(1)
     nw = max(len(f) for f in wheel_F) if wheel_F else 1
     Wm = np.full((len(wheel_F), nw), np.nan)
     for k, f in enumerate(wheel_F):
         Wm[k, : len(f)] = f
+    from clm_core.io.plots import plot_demo
+
+    plot_demo(
+        out,
+        t=(np.array(s_t) - t0) / 1e9,
+        soil_force=grid,
+        first_sleeper=gmin,
+        t_profile=(s_t[peak_k] - t0) / 1e9,
+        profile_x=np.asarray(s_x[peak_k], float),
+        profile_deflection=np.asarray(s_w[peak_k], float),
+        profile_force=np.asarray(s_F[peak_k], float),
+        wheel_t=(np.array(wheel_t) - t0) / 1e9,
+        wheel_load=Wm,
+    )
     front = np.array([np.nanmax(x) if len(x) else np.nan for x in wheel_x])
     admitted = np.repeat(window.instants(front)[:, None], nw, axis=1)
     peak_wheel, _, fb_wheel = masked_max(Wm, admitted)
@@ -315,75 +333,3 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
         "track_node_diagnostics": diag,
         "plots": ["sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png"],
     }
-
-
-def _plot_demo(
-    out: Any,
-    s_t: np.ndarray,
-    t0: int,
-    grid: np.ndarray,
-    gmin: int,
-    s_x: list[np.ndarray],
-    s_F: list[np.ndarray],
-    s_w: list[np.ndarray],
-    peak_k: int,
-    wheel_t: list[int],
-    wheel_F: list[np.ndarray],
-) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out = Path(out)
-    t = (s_t - t0) / 1e9
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    # the window follows the train: each sleeper is simulated while the train is near it;
-    # show sleepers passed over their whole time in the window, spread along the line
-    cover = np.isfinite(grid).sum(axis=0)
-    cols = np.where(cover >= 0.9 * cover.max())[0]
-    pick = cols[np.linspace(0, len(cols) - 1, min(6, len(cols))).astype(int)] if len(cols) else []
-    for j in pick:
-        ax.plot(t, grid[:, j] / 1e3, label=f"sleeper {gmin + j}")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("soil reaction force [kN]")
-    ax.set_title("Sleeper soil reaction forces (ballast force on the contact area)")
-    ax.grid(True, alpha=0.3)
-    if len(pick):
-        ax.legend(fontsize=8, ncol=3)
-    fig.tight_layout()
-    fig.savefig(out / "sleeper_soil_forces.png", dpi=120)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    ax.plot(s_x[peak_k], s_w[peak_k] * 1e3, "o-", ms=3, label="rail above sleepers")
-    ax.plot(
-        s_x[peak_k],
-        s_F[peak_k] / s_F[peak_k].max() * s_w[peak_k].max() * 1e3,
-        "--",
-        alpha=0.6,
-        label="soil force (scaled)",
-    )
-    ax.invert_yaxis()
-    ax.set_xlabel("position along the line [m]")
-    ax.set_ylabel("rail deflection [mm] (downwards)")
-    ax.set_title(f"Rail deflection along the track at t = {t[peak_k]:.3f} s (moment of the peak soil force)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "rail_deflection.png", dpi=120)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    tw = (np.array(wheel_t) - t0) / 1e9
-    W = np.full((len(wheel_F), max(len(f) for f in wheel_F)), np.nan)
-    for k, f in enumerate(wheel_F):
-        W[k, : len(f)] = f
-    for i in range(W.shape[1]):
-        ax.plot(tw, W[:, i] / 1e3, lw=0.8, label=f"wheel {i}")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("wheel load [kN]")
-    ax.set_title("Wheel loads (vehicle simulator node)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, ncol=4)
-    fig.tight_layout()
-    fig.savefig(out / "wheel_loads.png", dpi=120)
-    plt.close(fig)

@@ -1,0 +1,310 @@
+"""Figures (clm_core.io.plots) as an engineer puts them in a report, and the HTML index.
+
+Every figure the commands write is rendered here from real runs into
+``tmp_path`` (receptance, soil chain, moving loads, vehicle, calibration,
+soil calibration, and the demo plots from the shipped demo bag) and
+checked: axes labelled with units, legends off the curve extremes, valid
+non-blank PNGs (tests/io/figure_checks.py), plus the specific points of
+issue 13 item 8. The root conftest applies the same checks to every figure
+any other test renders.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import textwrap
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from clm_core.calibration.synthetic import add_noise, simulate_impact, write_bag
+from clm_core.cli import main
+from clm_core.io import plots
+from clm_core.io.plots import _base
+from clm_core.io.report_index import write_index
+from clm_core.params import load_soil
+from tests.io.figure_checks import curve_extremes, figure_problems, png_problems
+
+REPO = Path(__file__).resolve().parents[2]
+DEMO_BAG = REPO / "bags" / "demo" / "demo_bag"
+
+#: Every figure file of the suite (clm_core.io.plots module docstring).
+CORE_FIGURES = {"receptance.png", "chain.png", "simulate.png", "wheel_loads.png", "soil_forces.png", "spectra.png",
+                "transfer_functions.png", "sums.png", "time_histories.png", "receptances.png"}
+DEMO_FIGURES = {"sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png"}
+
+
+def _have_ros_layer() -> bool:
+    try:
+        import clm_ros.launcher  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, list[tuple[Path, Figure]]]]:
+    """Run every command that draws, small; yield (output root, [(file, figure)])."""
+    record: list[tuple[Path, Figure]] = []
+
+    def observe(fig: Figure, path: Path) -> None:
+        record.append((path, fig))
+
+    root = tmp_path_factory.mktemp("figures")
+    plots.figure_observers.append(observe)
+    try:
+        assert main(["receptance", "--sleepers", "21", "--df", "1", "--out", str(root / "receptance")]) == 0
+        assert main(["soil-chain", "--areas", "21", "--df", "1", "--out", str(root / "chain")]) == 0
+        assert main(["simulate", "--load", "100e3", "--axles", "0,2.5", "--speed", "30", "--duration", "0.3",
+                     "--dt", "2e-4", "--out", str(root / "simulate")]) == 0
+        assert main(["simulate", "--vehicle", "tram", "--speed", "20", "--duration", "0.2", "--start", "10",
+                     "--irregularity", "fra5", "--out", str(root / "vehicle")]) == 0
+        rec = add_noise(simulate_impact(load_soil("mevergnies"), n_areas=11, duration=0.8), 30.0, seed=11)
+        bag = write_bag(rec, root / "impact_bag").path
+        assert main(["calibrate", str(bag), "--method", "impact", "--fmax", "120", "--out",
+                     str(root / "calibrate")]) == 0
+        assert main(["soil-calibrate", "--profile", "medium", "--areas", "5", "--fmax", "40", "--sweep-max", "40",
+                     "--df", "5", "--out", str(root / "soil-calibrate")]) == 0
+        if _have_ros_layer():
+            from clm_ros.launcher import analyse_bag
+
+            (root / "demo").mkdir()
+            analyse_bag(DEMO_BAG, root / "demo")
+        yield root, record
+    finally:
+        plots.figure_observers.remove(observe)
+
+
+def _figure(record: list[tuple[Path, Figure]], rel: str) -> Figure:
+    found = [fig for path, fig in record if path.as_posix().endswith(rel)]
+    assert len(found) == 1, f"{rel}: rendered {len(found)} times"
+    return found[0]
+
+
+def test_every_figure_of_the_suite_is_rendered(rendered: tuple[Path, list[tuple[Path, Figure]]]) -> None:
+    root, record = rendered
+    names = {p.name for p, _ in record}
+    assert CORE_FIGURES <= names
+    if _have_ros_layer():
+        assert {p.name for p, _ in record if p.parent.name == "demo"} == DEMO_FIGURES
+    # one observed figure per PNG file written, and nothing written without being observed
+    assert sorted(p for p, _ in record) == sorted(p for p in root.rglob("*.png"))
+
+
+def test_figures_label_units_and_keep_peaks_visible(rendered: tuple[Path, list[tuple[Path, Figure]]]) -> None:
+    _, record = rendered
+    problems = [f"{path.parent.name}/{path.name}: {p}" for path, fig in record for p in figure_problems(fig)]
+    assert not problems, "\n".join(problems)
+
+
+def test_png_files_are_valid_and_not_blank(rendered: tuple[Path, list[tuple[Path, Figure]]]) -> None:
+    _, record = rendered
+    problems = [p for path, _ in record for p in png_problems(path)]
+    assert not problems, "\n".join(problems)
+
+
+def test_receptance_peaks_are_marked_and_labelled_in_hz(rendered: tuple[Path, list[tuple[Path, Figure]]]) -> None:
+    import json
+
+    root, record = rendered
+    peaks = json.loads((root / "receptance" / "summary.json").read_text())["peaks_hz"]
+    assert len(peaks) >= 2
+    fig = _figure(record, "receptance/receptance.png")
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.texts]
+    assert labels == [f"{p:.1f} Hz" for p in peaks]
+    markers = [ln for ln in ax.get_lines() if ln.get_label() == "peaks of |H11|"]
+    assert len(markers) == 1 and np.allclose(markers[0].get_xdata(), peaks)
+    # each label sits next to its marker (within 40 px) and inside the figure
+    fbox = fig.bbox
+    for t, p, y in zip(ax.texts, markers[0].get_xdata(), markers[0].get_ydata(), strict=True):
+        bx = t.get_window_extent()
+        mx, my = ax.transData.transform((p, y))
+        assert abs(bx.x0 - mx) < 40 and abs(bx.y0 - my) < 40
+        assert fbox.x0 <= bx.x0 and bx.x1 <= fbox.x1 and bx.y1 <= fbox.y1
+
+
+def test_wheel_loads_one_panel_per_wheel(rendered: tuple[Path, list[tuple[Path, Figure]]]) -> None:
+    import json
+
+    root, record = rendered
+    n = json.loads((root / "vehicle" / "summary.json").read_text())["settings"]["n_wheels"]
+    for rel, expect in (("vehicle/wheel_loads.png", n), ("demo/wheel_loads.png", 4)):
+        if rel.startswith("demo") and not _have_ros_layer():
+            continue
+        fig = _figure(record, rel)
+        panels = [ax for ax in fig.axes if ax.get_ylabel().startswith("wheel ") and "[kN]" in ax.get_ylabel()]
+        assert [ax.get_ylabel().split("\n")[0] for ax in panels] == [f"wheel {i}" for i in range(expect)]
+        # one load curve per panel, all panels on one load scale and one time axis
+        assert all(len([ln for ln in ax.get_lines() if ln.get_label() == "wheel load"]) == 1 for ax in panels)
+        assert len({ax.get_ylim() for ax in panels}) == 1 and len({ax.get_xlim() for ax in panels}) == 1
+
+
+def test_many_wheels_are_spread_over_eight_panels(tmp_path: Path) -> None:
+    """Twelve wheels: eight panels, first and last wheel included, the title says which."""
+    t = np.linspace(0.0, 1.0, 400)
+    W = 12
+    loads = 80e3 + 10e3 * np.sin(2 * np.pi * (3 + np.arange(W))[None, :] * t[:, None])
+    force = 30e3 * np.exp(-(((np.arange(30)[None, :] - 30 * t[:, None]) / 2.0) ** 2))
+    x = 0.6 * np.arange(30.0)
+    figs: dict[str, Figure] = {}
+
+    def observe(fig: Figure, path: Path) -> None:
+        figs[path.name] = fig
+
+    plots.figure_observers.append(observe)
+    try:
+        written = plots.plot_demo(tmp_path, t, force, 100, t[200], x, force[200] / 30e6, force[200], t, loads)
+    finally:
+        plots.figure_observers.remove(observe)
+    assert {p.name for p in written} == DEMO_FIGURES == set(figs)
+    fig = figs["wheel_loads.png"]
+    panels = [ax.get_ylabel().split("\n")[0] for ax in fig.axes]
+    assert len(panels) == plots.MAX_WHEEL_PANELS == 8
+    assert panels[0] == "wheel 0" and panels[-1] == f"wheel {W - 1}" and len(set(panels)) == 8
+    assert f"of {W})" in fig.get_suptitle()
+
+
+def test_chain_closed_forms_stay_visible_on_the_chain_curves(
+    rendered: tuple[Path, list[tuple[Path, Figure]]],
+) -> None:
+    _, record = rendered
+    fig = _figure(record, "chain/chain.png")
+    for ax in fig.axes[:2]:
+        lines = {ln.get_label(): ln for ln in ax.get_lines()}
+        for chain, eq in (("chain: F / sum X_j", "Eq. (16)"), ("chain: F / sum (-1)^j X_j", "Eq. (18)")):
+            c, m = lines[chain], lines[eq]
+            # the curves coincide to within a line width (1 % of the axis range): the closed form needs its own look
+            lo, hi = ax.get_ylim()
+            assert np.max(np.abs(np.asarray(m.get_ydata()) - np.asarray(c.get_ydata()))) < 0.01 * (hi - lo)
+            assert m.get_linestyle() != "-" and m.get_marker() not in ("None", "", None)
+            assert m.get_markevery() is not None and m.get_zorder() > c.get_zorder()
+            assert c.get_linewidth() > 2 * m.get_linewidth()
+            # markers every few points: more than 5, fewer than a third of the points
+            every = m.get_markevery()
+            assert isinstance(every, tuple)
+            n_marks = len(range(every[0], len(m.get_xdata()), every[1]))
+            assert 5 < n_marks < len(m.get_xdata()) / 3
+
+
+def test_soil_force_on_the_deflection_plot_has_its_own_axis_in_kn(
+    rendered: tuple[Path, list[tuple[Path, Figure]]],
+) -> None:
+    if not _have_ros_layer():
+        pytest.skip("demo plots need the ROS layer (clm_ros) to read the demo bag")
+    _, record = rendered
+    fig = _figure(record, "demo/rail_deflection.png")
+    assert len(fig.axes) == 2
+    host, twin = fig.axes
+    assert np.allclose(host.get_position().bounds, twin.get_position().bounds)
+    assert "[mm]" in host.get_ylabel() and "[kN]" in twin.get_ylabel()
+    assert twin.yaxis.get_label_position() == "right"
+    (force,) = twin.get_lines()
+    (defl,) = host.get_lines()
+    # unscaled: the soil force is in kN on its own axis (tens of kN), the deflection in mm
+    assert 10.0 < np.nanmax(force.get_ydata()) < 100.0 and 0.3 < np.nanmax(defl.get_ydata()) < 5.0
+    # zero of both axes at the same height (both drawn downwards, compression +)
+    z_host = host.transData.transform((0.0, 0.0))[1]
+    z_twin = twin.transData.transform((0.0, 0.0))[1]
+    assert abs(z_host - z_twin) < 1.0 and host.yaxis_inverted() and twin.yaxis_inverted()
+
+
+def test_a_legend_on_a_peak_is_moved(tmp_path: Path) -> None:
+    """The legend asked for the upper right corner, where the curve peaks: it must move."""
+    x = np.linspace(0.0, 10.0, 500)
+    with _base.style():
+        fig, axs = _base.new_figure(1, 1, (6.0, 4.0))
+        ax = axs[0, 0]
+        ax.plot(x, np.exp(-((x - 9.5) ** 2)), label="peak at the right")
+        ax.plot(x, 0.2 * np.exp(-((x - 1.0) ** 2)), label="small bump at the left")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [N]")
+        leg = _base.legend(ax, "upper right")
+        fig.draw_without_rendering()
+        b = leg.get_window_extent()
+        assert any(b.x0 <= px <= b.x1 and b.y0 <= py <= b.y1 for _, px, py in curve_extremes(fig))
+        _base.save(fig, tmp_path / "moved.png")
+    assert figure_problems(fig) == []
+    assert png_problems(tmp_path / "moved.png") == []
+
+
+def test_html_index_links_every_figure_and_summary(rendered: tuple[Path, list[tuple[Path, Figure]]]) -> None:
+    root, _ = rendered
+    page = write_index(root, title="test run")
+    text = page.read_text()
+    hrefs = set(re.findall(r'href="([^"]+)"', text))
+    srcs = set(re.findall(r'<img src="([^"]+)"', text))
+    pngs = {p.relative_to(root).as_posix() for p in root.rglob("*.png")}
+    summaries = {p.relative_to(root).as_posix() for p in root.rglob("summary.json")}
+    assert pngs and srcs == pngs and pngs <= hrefs and summaries <= hrefs
+    for link in hrefs:
+        if link.startswith("#"):
+            continue
+        assert not link.startswith("/") and "://" not in link
+        assert (root / link).exists(), link
+    # a bag is one link, not its files; summary values are shown
+    assert "impact_bag/" in hrefs and not any(h.startswith("impact_bag/") and h != "impact_bag/" for h in hrefs)
+    assert "peak_sleeper_soil_force_N" in text and "<title>test run</title>" in text
+
+
+def test_clm_report_writes_its_html_index(tmp_path: Path) -> None:
+    out = tmp_path / "report"
+    assert main(["report", "--out", str(out)]) == 0
+    text = (out / "index.html").read_text()
+    pngs = sorted(p.relative_to(out).as_posix() for p in out.rglob("*.png"))
+    assert len(pngs) == len(list(out.glob("*/summary.json"))) > 20
+    assert all(f'<img src="{p}"' in text for p in pngs)
+
+
+def test_importing_the_core_never_imports_matplotlib() -> None:
+    """Every clm_core module but the clm_core.io.plots package, imported in a fresh interpreter: no matplotlib."""
+    code = textwrap.dedent(
+        """
+        import importlib, os, pkgutil, sys
+        import clm_core
+
+        def walk(path, prefix):  # like pkgutil.walk_packages, without importing the packages
+            for m in pkgutil.iter_modules([path]):
+                yield prefix + m.name
+                if m.ispkg:
+                    yield from walk(os.path.join(path, m.name), prefix + m.name + ".")
+
+        names = sorted(walk(clm_core.__path__[0], "clm_core."))
+        assert "clm_core.io.plots" in names and len(names) > 50, names
+        for name in names:
+            if name != "clm_core.io.plots" and not name.startswith("clm_core.io.plots."):
+                importlib.import_module(name)
+        bad = sorted(m for m in sys.modules if m == "matplotlib" or m.startswith("matplotlib."))
+        print(len(names), bad)
+        sys.exit(1 if bad else 0)
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_drawing_leaves_the_users_backend_and_pyplot_alone(tmp_path: Path) -> None:
+    code = textwrap.dedent(
+        f"""
+        import sys
+        import matplotlib
+        matplotlib.use("svg")
+        from clm_core.frequency import receptance
+        from clm_core.io.plots import plot_receptance
+        from clm_core.params import load_model
+        from clm_core.track import assemble
+        import numpy as np
+        rec = receptance(assemble(load_model("mevergnies", "mevergnies", "clm"), 21), np.arange(1.0, 200.0, 2.0))
+        plot_receptance(rec, {str(tmp_path / "r.png")!r})
+        assert matplotlib.get_backend().lower() == "svg", matplotlib.get_backend()
+        assert "matplotlib.pyplot" not in sys.modules
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert png_problems(tmp_path / "r.png") == []
