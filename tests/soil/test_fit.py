@@ -7,14 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from clm_core.checks import chain_min_eigenvalue, clm_chain_admissible
 from clm_core.errors import ParameterError, StabilityError
-from clm_core.fitting.clm_sums import (
-    chain_matrix_min_eigenvalue,
-    check_chain_positive_definite,
-    clm_chain_response,
-    fit_clm_sums,
-    fit_lysmer,
-)
+from clm_core.soil.chain import chain_frequency_response
+from clm_core.soil.fit import fit_clm_sums, fit_lysmer
 
 TABLE1 = {"mf": 380.0, "kf": 72e6, "df": 680e3, "kc": 160e6, "dc": -155e3}
 
@@ -66,7 +62,7 @@ def test_recovers_clm_parameters_from_chain_sums(norm: str) -> None:
 def test_chain_response_helper_matches_independent_solve() -> None:
     f = np.array([0.0, 7.0, 55.0])
     _, _, X = chain_sums(f, TABLE1, 11)
-    np.testing.assert_allclose(clm_chain_response(f, n_areas=11, **TABLE1), X, rtol=1e-12)
+    np.testing.assert_allclose(chain_frequency_response(TABLE1, 11, f), X, rtol=1e-12)
 
 
 def test_band_selects_frequencies() -> None:
@@ -74,8 +70,13 @@ def test_band_selects_frequencies() -> None:
     S, A, _ = chain_sums(f, TABLE1, 41)
     S = S.copy()
     S[f > 100] *= 3.0  # garbage outside the band must not matter
-    fit = fit_clm_sums(f, S, A, fmin=10.0, fmax=100.0)
+    # total-first: k_f comes from Eq. (16) alone, exact for the free 41-area chain
+    fit = fit_clm_sums(f, S, A, fmin=10.0, fmax=100.0, route="total-first")
     assert fit.kf == pytest.approx(72e6, rel=1e-9)
+    assert fit.n_points == 91
+    # joint (default): Eq. (18) holds to ~1e-4 for 41 areas, which reaches k_f at ~1e-6
+    fit = fit_clm_sums(f, S, A, fmin=10.0, fmax=100.0)
+    assert fit.kf == pytest.approx(72e6, rel=1e-5)
     assert fit.n_points == 91
 
 
@@ -119,15 +120,15 @@ def test_damping_matrix_eigenvalue_bound(N: int, dc: float) -> None:
     for a in range(N - 1):
         C[a, a + 1] = C[a + 1, a] = -dc
     lam = np.linalg.eigvalsh(C).min()
-    assert chain_matrix_min_eigenvalue(df, dc, N) == pytest.approx(lam, rel=1e-9, abs=1e-6)
+    assert chain_min_eigenvalue(df, dc, N) == pytest.approx(lam, rel=1e-9, abs=1e-6)
     # the length-independent bound df + 4 min(dc, 0) is never above the finite-chain value
-    assert chain_matrix_min_eigenvalue(df, dc) <= lam + 1e-6
+    assert chain_min_eigenvalue(df, dc) <= lam + 1e-6
 
 
 def test_check_positive_definite_messages() -> None:
-    check_chain_positive_definite(**{"df": 680e3, "dc": -155e3, "kf": 72e6, "kc": 160e6, "mf": 380.0})
+    clm_chain_admissible(**{"df": 680e3, "dc": -155e3, "kf": 72e6, "kc": 160e6, "mf": 380.0})
     with pytest.raises(StabilityError, match="kc = -2e\\+07"):
-        check_chain_positive_definite(df=680e3, dc=-155e3, kf=72e6, kc=-20e6, mf=380.0)
+        clm_chain_admissible(df=680e3, dc=-155e3, kf=72e6, kc=-20e6, mf=380.0)
 
 
 def test_fit_lysmer_exact() -> None:
