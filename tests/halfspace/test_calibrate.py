@@ -135,3 +135,26 @@ def test_mevergnies_joint_fit_gives_positive_mass(mevergnies_row: SoilCalibratio
         assert 0.0 < q[key]["residual"] < 0.15 and q[key]["max_rel_error"] > q[key]["residual"]
         assert q["other_route"][key]["residual"] == pytest.approx(other.quality()[key]["residual"])
     assert q["other_route"]["mf"] == 0.0 and q["other_route"]["mf_unconstrained"] < -100.0
+
+
+@pytest.mark.parametrize("route", ["joint", "total-first"])
+def test_cli_route_and_both_fit_qualities(tmp_path: Path, capsys: pytest.CaptureFixture[str], route: str) -> None:
+    """``--route`` picks the fit (joint by default); summary, soil.yaml and stdout give the quality of both sums."""
+    out = tmp_path / "cal"
+    argv = ["soil-calibrate", "--profile", "medium", "--out", str(out), "--areas", "5", "--fmax", "40",
+            "--sweep-max", "40", "--df", "5", "--no-plots"]
+    assert main(argv + ([] if route == "joint" else ["--route", route])) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    q = summary["fit_quality"]
+    assert summary["fit"]["route"] == q["route"] == summary["command"]["route"] == route
+    other = "total-first" if route == "joint" else "joint"
+    assert q["other_route"]["route"] == other
+    for key in ("total", "alternating"):
+        assert q[key]["residual"] == pytest.approx(summary["fit"][f"residual_{key}"])
+        assert q[key]["max_rel_error"] == pytest.approx(summary["fit"][f"max_rel_error_{key}"])
+        assert q["other_route"][key]["residual"] > 0
+    source = yaml.safe_load((out / "soil.yaml").read_text())["source"]
+    assert f"route '{route}'" in source and "residual total sum" in source and "alternating sum" in source
+    text = capsys.readouterr().out
+    assert "total sum (Eq. 16) residual" in text and "alternating sum (Eq. 18) residual" in text
+    assert f"{other} route:" in text
