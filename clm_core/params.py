@@ -369,6 +369,35 @@ def load_soil(name_or_path: str | Path, model: SoilModel = "clm") -> SoilParams:
     return _build(SoilParams, {"model": "clm", **clm}, "soil").of_model(model)  # type: ignore[no-any-return]
 
 
+def soil_track(name_or_path: str | Path) -> str | None:
+    """The track preset a soil preset (or preset-format file) was studied with: its ``track:`` key.
+
+    The soft, medium and stiff soils of Sec. 5.2 go with the ``soil-study``
+    track (d = 0.72 m), Mevergnies (and, by the project's choice, Haren) with
+    the ``mevergnies`` track (d = 0.6 m). Used wherever a soil-only figure
+    needs a track quantity, e.g. the sleeper spacing of Eq. (21).
+
+    Returns
+    -------
+    str or None
+        The track preset name, None if the soil names none.
+
+    Raises
+    ------
+    PresetError
+        Unknown soil preset or unreadable file; a ``track`` that is not a known track preset.
+    """
+    track = _load_yaml(name_or_path, "soils").get("track")
+    if track is None:
+        return None
+    if str(track) not in list_presets("tracks"):
+        raise PresetError(
+            f"soil {str(name_or_path)!r}: track = {track!r} is not a track preset; known: "
+            f"{', '.join(list_presets('tracks'))}"
+        )
+    return str(track)
+
+
 def load_model(
     track: str | Path = "mevergnies",
     soil: str | Path | None = "mevergnies",
