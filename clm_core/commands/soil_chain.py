@@ -119,7 +119,7 @@ def soil_chain_report(
 
     from clm_core.io.history import write_json
     from clm_core.io.plots import plot_chain
-    from clm_core.soil.chain import chain_frequency_response, chain_sums, chain_time_response
+    from clm_core.soil.chain import chain_impedance_sums, chain_time_response
     from clm_core.soil.formulas import (
         alternating_sum_impedance,
         resonance_frequency,
@@ -132,8 +132,7 @@ def soil_chain_report(
     if areas < 3 or areas % 2 == 0:
         raise ParameterError(f"--areas {areas}: must be odd and >= 3 (2n+1 areas)")
     f = np.arange(0.0, fmax + 0.5 * df, df)
-    X = chain_frequency_response(soil, areas, f)
-    sums = chain_sums(f, X)
+    sums = chain_impedance_sums(soil, areas, f)
     w = 2 * np.pi * f
     eq16, eq18 = total_sum_impedance(w, soil), alternating_sum_impedance(w, soil)
     resp = chain_time_response(soil, areas, dt=dt)
