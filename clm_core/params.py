@@ -390,7 +390,7 @@ def soil_track(name_or_path: str | Path) -> str | None:
     track = _load_yaml(name_or_path, "soils").get("track")
     if track is None:
         return None
-    if str(track) not in list_presets("tracks"):
+    if not (_preset_dir("tracks") / f"{track}.yaml").is_file():
         raise PresetError(
             f"soil {str(name_or_path)!r}: track = {track!r} is not a track preset; known: "
             f"{', '.join(list_presets('tracks'))}"
