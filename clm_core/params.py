@@ -30,20 +30,17 @@ from typing import Any, Literal, cast, get_args
 
 import yaml
 
+from clm_core.checks import SOIL_MODEL_PARAMETERS, soil_values, track_values
 from clm_core.checks import finite as _check_finite
-from clm_core.checks import nonnegative as _check_nonnegative
 from clm_core.checks import positive as _check_positive
 from clm_core.errors import ParameterError, PresetError
 
 SoilModel = Literal["rigid", "winkler", "lysmer", "clm"]
 SOIL_MODELS: tuple[str, ...] = get_args(SoilModel)
-#: The soil parameters each foundation model uses.
-SOIL_USED: Mapping[str, tuple[str, ...]] = {
-    "rigid": (),
-    "winkler": ("kf", "df"),
-    "lysmer": ("mf", "kf", "df"),
-    "clm": ("mf", "kf", "df", "kc", "dc"),
-}
+#: The soil parameters each foundation model uses (the rules: :func:`clm_core.checks.soil_values`).
+SOIL_USED: Mapping[str, tuple[str, ...]] = SOIL_MODEL_PARAMETERS
+#: The five soil parameters, in the order of every chain Jacobian.
+SOIL_NAMES = ("mf", "kf", "df", "kc", "dc")
 
 
 @dataclass(frozen=True)
@@ -112,10 +109,8 @@ class TrackParams:
     contact_width: float = 0.285
 
     def __post_init__(self) -> None:
-        for name in ("spacing", "kp", "ms", "kb", "contact_length", "contact_width"):
-            object.__setattr__(self, name, _check_positive(f"track.{name}", getattr(self, name)))
-        for name in ("dp", "db"):
-            object.__setattr__(self, name, _check_nonnegative(f"track.{name}", getattr(self, name)))
+        for name, v in track_values({f.name: getattr(self, f.name) for f in fields(self)}).items():
+            object.__setattr__(self, name, v)
         if self.contact_width > self.spacing:
             raise ParameterError(
                 f"track.contact_width = {self.contact_width:g} m: must not exceed the sleeper "
@@ -163,34 +158,21 @@ class SoilParams:
         if self.model not in SOIL_MODELS:
             raise ParameterError(f"soil.model = {self.model!r}: must be one of {', '.join(SOIL_MODELS)}")
         used = SOIL_USED[self.model]
-        for name in ("mf", "kf", "df", "kc", "dc"):
+        for name in SOIL_NAMES:
             v = _check_finite(f"soil.{name}", getattr(self, name))
-            object.__setattr__(self, name, v)
             if name not in used and v != 0.0:
                 raise ParameterError(
                     f"soil.{name} = {v:g}: not a parameter of the {self.model!r} model "
                     f"(which uses {', '.join(used) or 'none'}); set it to 0 or change the model"
                 )
-        if self.model != "rigid":
-            _check_positive("soil.kf", self.kf)
-            _check_nonnegative("soil.df", self.df)
-        if self.model in ("lysmer", "clm"):
-            _check_positive("soil.mf", self.mf)
-        if self.model == "clm":
-            _check_nonnegative("soil.kc", self.kc)
-            # Infinite chain: dissipation sum d_f v_i^2 + d_c (v_i - v_{i+1})^2 has
-            # eigenvalues d_f + d_c (2 - 2 cos theta), in [d_f, d_f + 4 d_c] for d_c < 0.
-            if self.df + 4.0 * self.dc < 0.0:
-                raise ParameterError(
-                    f"soil.dc = {self.dc:g} N s/m: the CLM damping matrix is not positive "
-                    f"semi-definite (rule d_f + 4 d_c >= 0, here {self.df + 4 * self.dc:g}); "
-                    "the response would diverge (Kouroussis et al. 2011, Sec. 4.2)"
-                )
+        values = soil_values(self.model, {n: getattr(self, n) for n in SOIL_NAMES}, prefix="soil.")
+        for name, v in values.items():
+            object.__setattr__(self, name, v)
 
     def of_model(self, model: SoilModel) -> SoilParams:
         """Return this soil seen through another model (drops unused parameters)."""
         used = SOIL_USED[model]
-        values = {n: (getattr(self, n) if n in used else 0.0) for n in ("mf", "kf", "df", "kc", "dc")}
+        values = {n: (getattr(self, n) if n in used else 0.0) for n in SOIL_NAMES}
         return SoilParams(model=model, **values)
 
     def to_dict(self) -> dict[str, Any]:
@@ -203,7 +185,6 @@ class SoilParams:
 # Names accepted by `override()` / `--set NAME=VALUE` and per-sleeper overrides.
 RAIL_NAMES = tuple(f.name for f in fields(RailParams))
 TRACK_NAMES = tuple(f.name for f in fields(TrackParams))
-SOIL_NAMES = ("mf", "kf", "df", "kc", "dc")
 PER_SLEEPER_NAMES = ("kp", "dp", "ms", "kb", "db", "mf", "kf", "df", "kc", "dc")
 _ALIASES = {
     "Er": "E",
@@ -386,6 +367,35 @@ def load_soil(name_or_path: str | Path, model: SoilModel = "clm") -> SoilParams:
     if not clm:
         raise PresetError(f"soil {str(name_or_path)!r}: no 'clm' section")
     return _build(SoilParams, {"model": "clm", **clm}, "soil").of_model(model)  # type: ignore[no-any-return]
+
+
+def soil_track(name_or_path: str | Path) -> str | None:
+    """The track preset a soil preset (or preset-format file) was studied with: its ``track:`` key.
+
+    The soft, medium and stiff soils of Sec. 5.2 go with the ``soil-study``
+    track (d = 0.72 m), Mevergnies (and, by the project's choice, Haren) with
+    the ``mevergnies`` track (d = 0.6 m). Used wherever a soil-only figure
+    needs a track quantity, e.g. the sleeper spacing of Eq. (21).
+
+    Returns
+    -------
+    str or None
+        The track preset name, None if the soil names none.
+
+    Raises
+    ------
+    PresetError
+        Unknown soil preset or unreadable file; a ``track`` that is not a known track preset.
+    """
+    track = _load_yaml(name_or_path, "soils").get("track")
+    if track is None:
+        return None
+    if not (_preset_dir("tracks") / f"{track}.yaml").is_file():
+        raise PresetError(
+            f"soil {str(name_or_path)!r}: track = {track!r} is not a track preset; known: "
+            f"{', '.join(list_presets('tracks'))}"
+        )
+    return str(track)
 
 
 def load_model(

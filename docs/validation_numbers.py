@@ -9,7 +9,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from clm_core.frequency import receptance
-from clm_core.params import load_model, load_soil
+from clm_core.params import load_model, load_soil, load_track, soil_track
 from clm_core.profile import load_profile
 from clm_core.soil.chain import chain_time_response
 from clm_core.soil.formulas import (
@@ -67,16 +67,20 @@ def main() -> None:
     )
     print()
     print(
-        "| soil | Eq. (21) [ms] | Eq. (23) [ms] | Eq. (22) low-f delay [ms] | measured area 0->1, 1->2 [ms] | Eq. (24) f_R [Hz] |"
+        "| soil | track (d [m]) | Eq. (21) [ms] | Eq. (21) with d = 0.6 m [ms] | Eq. (23) [ms] | "
+        "Eq. (22) low-f delay [ms] | measured area 0->1, 1->2 [ms] | Eq. (24) f_R [Hz] |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for soil in ("mevergnies", "soft", "medium", "stiff", "haren"):
         s = load_soil(soil)
         cs = load_profile(soil).layers[0].cs
+        track_name = soil_track(soil) or "mevergnies"
+        trk = load_track(track_name)[1]  # Eq. (21) with the spacing of the track this soil goes with
         r = chain_time_response(s, 41, dt=1e-5)
         _, t = r.peaks(2)
         print(
-            f"| {soil} | {time_lag_mulliken(0.6, 0.285, cs) * 1e3:.2f} | {time_lag_coupling(s) * 1e3:.2f} | "
+            f"| {soil} | {track_name} ({trk.spacing:g}) | {time_lag_mulliken(trk.spacing, trk.contact_width, cs) * 1e3:.2f} | "
+            f"{time_lag_mulliken(0.6, trk.contact_width, cs) * 1e3:.2f} | {time_lag_coupling(s) * 1e3:.2f} | "
             f"{time_lag_transmissibility(s) * 1e3:.2f} | {(t[1] - t[0]) * 1e3:.2f}, {(t[2] - t[1]) * 1e3:.2f} | "
             f"{resonance_frequency(s):.0f} |"
         )

@@ -26,7 +26,7 @@ from clm_core.calibration.channels import ChannelMap, find_channel_map, load_cha
 from clm_core.calibration.errors import BagError, CalibrationError
 from clm_core.calibration.impact import SoilFit, fit_impact
 from clm_core.calibration.lsq import FitStats, ParameterEstimate
-from clm_core.calibration.models import chain_response, track_response
+from clm_core.calibration.models import track_response
 from clm_core.calibration.options import METHODS, CalibrationOptions
 from clm_core.calibration.passby import DEFAULT_PASSBY_FIT, fit_passby
 from clm_core.calibration.receptance import DEFAULT_FIT, TrackFit, fit_receptance, out_dofs
@@ -35,6 +35,7 @@ from clm_core.calibration.spectra import TransferData, WindowSpec, transfer_func
 from clm_core.errors import ParameterError
 from clm_core.io.history import dumps_json
 from clm_core.params import ModelParams, SoilParams, load_model, load_params_file
+from clm_core.soil.chain import chain_response
 from clm_core.track import assemble
 
 Array = NDArray[np.float64]

@@ -9,10 +9,10 @@ paper's route (Kouroussis et al. 2011, Sec. 4.1) and then refines it:
    F / sum_j X_j = k_f - w^2 m_f + j w d_f and
    F / sum_j (-1)^j X_j = (k_f + 4 k_c) - w^2 m_f + j w (d_f + 4 d_c),
    with a quadratic fit of the real parts and a linear fit of the imaginary
-   parts (:func:`clm_core.fitting.clm_sums.fit_clm_sums`). A one-sided record
+   parts (:func:`clm_core.soil.fit.fit_clm_sums`). A one-sided record
    is completed by symmetry, Eq. (19)–(20).
 2. Refinement: all five parameters by bounded nonlinear least squares on all
-   measured receptances, model :func:`clm_core.calibration.models.chain_response`
+   measured receptances, model :func:`clm_core.soil.chain.chain_response`
    (the chain of :func:`clm_core.soil.chain.chain_matrices`, same number of
    areas) at the windowed complex frequency, over admissible sets only:
    m_f, k_f > 0, k_c >= 0, d_f >= 0 and d_f + 4 d_c >= 0 (damping matrix
@@ -45,12 +45,12 @@ from numpy.typing import NDArray
 
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.lsq import FitStats, ParameterEstimate, fit_bounded
-from clm_core.calibration.models import CHAIN_PARAMS, chain_response
 from clm_core.calibration.residuals import make_sandwich, misfit, norm_weights, stack_residual
 from clm_core.calibration.spectra import TransferData
 from clm_core.errors import ParameterError
-from clm_core.fitting.clm_sums import fit_clm_sums, fit_lysmer
 from clm_core.params import SoilParams
+from clm_core.soil.chain import CHAIN_PARAMS, chain_response
+from clm_core.soil.fit import fit_clm_sums, fit_lysmer
 
 Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]
@@ -191,12 +191,15 @@ def first_estimate(
     if sums is not None:
         tot, alt, n_sum, how = sums
         try:
-            fit = fit_clm_sums(f, tot, alt, fmin=fmin, fmax=fmax, norm="relative", on_unstable="clip", n_areas=n_sum)
+            fit = fit_clm_sums(
+                f, tot, alt, fmin=fmin, fmax=fmax, norm="relative", on_unstable="clip", n_areas=n_sum,
+                route="total-first",
+            )
             vals = dict(fit.params)
             note = f" ({', '.join(fit.constrained)})" if fit.constrained else ""
             method = (
                 f"Eq. (16)/(18) sums of {how}: quadratic fit of the real parts, linear fit of the imaginary parts "
-                f"(clm_core.fitting.clm_sums, relative norm, {fmin:g}-{fmax:g} Hz){note}"
+                f"(clm_core.soil.fit, total-first route, relative norm, {fmin:g}-{fmax:g} Hz){note}"
             )
             return _admissible(vals, warns), method, warns
         except ParameterError as exc:
@@ -217,7 +220,7 @@ def first_estimate(
         raise CalibrationError(f"no first estimate: Lysmer fit of area 0 failed ({exc})") from None
     vals = {"mf": ly.mf, "kf": ly.kf, "df": ly.df}
     method = (
-        "Lysmer's analogue, Eq. (3), fitted to F / X_0 (clm_core.fitting.clm_sums.fit_lysmer, relative norm, "
+        "Lysmer's analogue, Eq. (3), fitted to F / X_0 (clm_core.soil.fit.fit_lysmer, relative norm, "
         f"{fmin:g}-{fmax:g} Hz)"
     )
     if model == "clm":

@@ -32,8 +32,13 @@ def register(sub: Any) -> None:
     p.add_argument("--areas", type=int, default=41, help="number of areas 2n+1 (default 41)")
     p.add_argument("--fmax", type=float, default=150.0, help="highest frequency [Hz] (default 150)")
     p.add_argument("--df", type=float, default=0.5, help="frequency step [Hz] (default 0.5)")
-    p.add_argument("--spacing", type=float, default=0.6, help="sleeper spacing d for Eq. (21) [m] (default 0.6)")
-    p.add_argument("--width", type=float, default=0.285, help="contact width 2b along the track for Eq. (21) [m]")
+    add_setting(p, "track", default=None,
+                note="; here the track whose sleeper spacing d and contact width 2b Eq. (21) uses (e.g. soil-study "
+                "for the Sec. 5.2 soils; without it: --spacing and --width)")
+    p.add_argument("--spacing", type=float, default=None,
+                   help="sleeper spacing d for Eq. (21) [m] (default: the --track's, else 0.6)")
+    p.add_argument("--width", type=float, default=None,
+                   help="contact width 2b along the track for Eq. (21) [m] (default: the --track's, else 0.285)")
     p.add_argument("--dt", type=float, default=1e-5, help="time step of the pulse response [s] (default 1e-5)")
     p.add_argument("--out", required=True, help="output directory")
     add_overwrite(p)
@@ -54,9 +59,33 @@ def soil_from_args(soil: str, model: str, assignments: list[str]) -> SoilParams:
     return params
 
 
+def eq21_geometry(
+    track: str | None, spacing: float | None = None, width: float | None = None
+) -> tuple[float, float, str]:
+    """Sleeper spacing d [m] and contact width 2b [m] for Eq. (21), and where they come from.
+
+    With ``track`` (a preset or file) its spacing and contact width; a
+    ``spacing`` or ``width`` given as well must agree with them. Without it
+    ``spacing`` and ``width``, by default 0.6 m and 0.285 m (the Mevergnies
+    track).
+    """
+    from clm_core.params import load_track
+
+    if track is None:
+        src = "--spacing/--width" if spacing is not None or width is not None else "default (no --track)"
+        return 0.6 if spacing is None else float(spacing), 0.285 if width is None else float(width), src
+    _, trk = load_track(track)
+    for opt, given, own in (("--spacing", spacing, trk.spacing), ("--width", width, trk.contact_width)):
+        if given is not None and given != own:
+            raise ParameterError(
+                f"{opt} = {given:g} m differs from the value {own:g} m of --track {track}: give one of them"
+            )
+    return trk.spacing, trk.contact_width, f"track {track}"
+
+
 def soil_chain_report(
     soil: SoilParams, out: Path, *, areas: int = 41, fmax: float = 150.0, df: float = 0.5, spacing: float = 0.6,
-    width: float = 0.285, dt: float = 1e-5, cs: float | None = None, name: str = "",
+    width: float = 0.285, dt: float = 1e-5, cs: float | None = None, name: str = "", eq21_from: str = "",
 ) -> dict[str, Any]:
     """The chain of ``areas`` contact areas on ``soil``: sums, Eq. (16)/(18), pulse response; written to ``out``.
 
@@ -70,13 +99,15 @@ def soil_chain_report(
     fmax, df : float
         Frequencies 0..fmax step df [Hz].
     spacing, width : float
-        Sleeper spacing d and contact width 2b for Eq. (21) [m].
+        Sleeper spacing d and contact width 2b for Eq. (21) [m] (:func:`eq21_geometry`).
     dt : float
         Time step of the Eq. (1) pulse response [s].
     cs : float, optional
         Shear-wave speed of the top layer [m/s] for Eq. (21) (None: not computed).
     name : str
         Soil name for the plot title.
+    eq21_from : str
+        Where ``spacing`` and ``width`` come from (recorded in the summary's ``eq21_inputs``).
 
     Returns
     -------
@@ -88,7 +119,7 @@ def soil_chain_report(
 
     from clm_core.io.history import write_json
     from clm_core.io.plots import plot_chain
-    from clm_core.soil.chain import chain_frequency_response, chain_sums, chain_time_response
+    from clm_core.soil.chain import chain_impedance_sums, chain_time_response
     from clm_core.soil.formulas import (
         alternating_sum_impedance,
         resonance_frequency,
@@ -101,8 +132,7 @@ def soil_chain_report(
     if areas < 3 or areas % 2 == 0:
         raise ParameterError(f"--areas {areas}: must be odd and >= 3 (2n+1 areas)")
     f = np.arange(0.0, fmax + 0.5 * df, df)
-    X = chain_frequency_response(soil, areas, f)
-    sums = chain_sums(f, X)
+    sums = chain_impedance_sums(soil, areas, f)
     w = 2 * np.pi * f
     eq16, eq18 = total_sum_impedance(w, soil), alternating_sum_impedance(w, soil)
     resp = chain_time_response(soil, areas, dt=dt)
@@ -128,6 +158,7 @@ def soil_chain_report(
         "peak_time_s": times,
         "measured_delay_s": [times[1] - times[0], times[2] - times[1]],
         "eq21_delay_s": time_lag_mulliken(spacing, width, cs) if cs else None,
+        "eq21_inputs": {"spacing_m": spacing, "width_m": width, "cs_m_s": cs, "from": eq21_from},
         "eq23_delay_s": time_lag_coupling(soil) if soil.kc > 0 else None,
         "eq22_low_frequency_delay_s": time_lag_transmissibility(soil) if soil.kc > 0 else None,
         "eq24_resonance_hz": resonance_frequency(soil) if soil.mf > 0 else None,
@@ -154,10 +185,12 @@ def run(args: argparse.Namespace) -> int:
     if args.areas < 3 or args.areas % 2 == 0:
         raise ParameterError(f"--areas {args.areas}: must be odd and >= 3 (2n+1 areas)")
     soil = soil_from_args(args.soil, args.model, args.set)
+    spacing, width, src = eq21_geometry(args.track, args.spacing, args.width)
     with output_dir(args.out, args.overwrite) as d:
-        s = soil_chain_report(soil, d, areas=args.areas, fmax=args.fmax, df=args.df, spacing=args.spacing,
-                              width=args.width, dt=args.dt, cs=shear_wave_speed(args.soil), name=args.soil)
+        s = soil_chain_report(soil, d, areas=args.areas, fmax=args.fmax, df=args.df, spacing=spacing, width=width,
+                              dt=args.dt, cs=shear_wave_speed(args.soil), name=args.soil, eq21_from=src)
     m = s["measured_delay_s"]
     print(f"soil-chain: delays {quantity(m[0], 's')}, {quantity(m[1], 's')} "
-          f"(Eq. 21: {quantity(s['eq21_delay_s'], 's')}, Eq. 23: {quantity(s['eq23_delay_s'], 's')}) -> {d}")
+          f"(Eq. 21 with d = {spacing:g} m: {quantity(s['eq21_delay_s'], 's')}, "
+          f"Eq. 23: {quantity(s['eq23_delay_s'], 's')}) -> {d}")
     return 0

@@ -1,24 +1,6 @@
-"""Fitting of discrete soil models (CLM, Lysmer) to rigorous or measured impedances.
+"""Former home of the CLM sums fit; moved to :mod:`clm_core.soil.fit` (issue 11).
 
-:mod:`clm_core.fitting.clm_sums` fits the coupled lumped mass (CLM)
-parameters to the impedance sums of Kouroussis et al. (2011), Eq. (16) and
-(18), in a stated frequency band and error norm.
+Only :mod:`clm_core.fitting.clm_sums` remains, as a re-export for
+``clm_core/halfspace/impact_bag.py`` while that module moves to
+``clm_core/synthetic`` (another branch). Delete the package once nothing imports it.
 """
-
-from clm_core.fitting.clm_sums import (
-    ClmSumFit,
-    LysmerFit,
-    check_chain_positive_definite,
-    clm_chain_response,
-    fit_clm_sums,
-    fit_lysmer,
-)
-
-__all__ = [
-    "ClmSumFit",
-    "LysmerFit",
-    "check_chain_positive_definite",
-    "clm_chain_response",
-    "fit_clm_sums",
-    "fit_lysmer",
-]

@@ -11,7 +11,7 @@ displacements positive downwards; material damping E* = E (1 + i w beta + 2 i xi
 """
 
 from clm_core.halfspace.bem import RowGeometry, RowModel, RowResult, disk_impedance, row_sweep
-from clm_core.halfspace.calibrate import SoilCalibration, auto_geometry, calibrate_profile, eq6_static_stiffness
+from clm_core.halfspace.calibrate import SoilCalibration, auto_geometry, calibrate_profile
 from clm_core.halfspace.green import KernelEngine, RadialKernel, point_load_displacement, surface_flexibility_k
 from clm_core.halfspace.impact import ImpactResponse, impact_response, save_impact_npz
 from clm_core.profile import Layer, SoilProfile, load_profile
@@ -29,7 +29,6 @@ __all__ = [
     "auto_geometry",
     "calibrate_profile",
     "disk_impedance",
-    "eq6_static_stiffness",
     "impact_response",
     "load_profile",
     "point_load_displacement",

@@ -58,6 +58,7 @@ from scipy import sparse, special
 from clm_core.errors import ParameterError
 from clm_core.halfspace.green import KernelEngine, RadialKernel, lagrange_weights
 from clm_core.profile import SoilProfile
+from clm_core.soil.chain import chain_sums
 
 __all__ = [
     "RowGeometry",
@@ -221,14 +222,12 @@ class RowResult:
         return np.asarray(np.linalg.inv(self.flexibility))
 
     def total_sum(self) -> ComplexArray:
-        """F / sum_j X_j for a unit force on the centre area, Eq. (16) [N/m]."""
-        return np.asarray(1.0 / self.centre_column.sum(axis=1))
+        """F / sum_j X_j for a unit force on the centre area, Eq. (16) [N/m] (``soil.chain.chain_sums``)."""
+        return chain_sums(self.freqs, self.centre_column).total
 
     def alternating_sum(self) -> ComplexArray:
-        """F / sum_j (-1)^j X_j, centre area j = 0, Eq. (18) [N/m]."""
-        j = np.arange(self.centre_column.shape[1]) - self.geometry.n
-        sign = np.where(j % 2 == 0, 1.0, -1.0)
-        return np.asarray(1.0 / (self.centre_column * sign[None, :]).sum(axis=1))
+        """F / sum_j (-1)^j X_j, centre area j = 0, Eq. (18) [N/m] (``soil.chain.chain_sums``)."""
+        return chain_sums(self.freqs, self.centre_column).alternating
 
 
 class RowModel:

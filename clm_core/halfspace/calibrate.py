@@ -8,8 +8,11 @@ Steps:
    (:mod:`clm_core.halfspace.bem`);
 2. unit force on the centre area: displacements X_j, j = -n..n;
 3. the two sums S = F / sum_j X_j (Eq. 16) and A = F / sum_j (-1)^j X_j (Eq. 18);
-4. band- and norm-explicit least squares for m_f, k_f, d_f (from S) and
-   k_c, d_c (from A) (:func:`clm_core.fitting.clm_sums.fit_clm_sums`).
+4. band- and norm-explicit least squares for m_f, k_f, d_f, k_c, d_c from
+   both sums at once (default route ``"joint"``), or m_f, k_f, d_f from S
+   and then k_c, d_c from A (route ``"total-first"``)
+   (:func:`clm_core.soil.fit.fit_clm_sums`); the fit quality of both sums is
+   reported, and the other route is fitted too for comparison.
 
 The impedance of one isolated area is computed as well, with its Lysmer fit
 (Eq. 3) and its static stiffness next to the estimate of Eq. (6).
@@ -25,26 +28,17 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from clm_core.errors import ParameterError
-from clm_core.fitting.clm_sums import ClmSumFit, LysmerFit, Norm, clm_chain_response, fit_clm_sums, fit_lysmer
+from clm_core.errors import ParameterError, StabilityError
 from clm_core.halfspace.bem import RowGeometry, RowModel, RowResult
 from clm_core.profile import SoilProfile
+from clm_core.soil.chain import chain_frequency_response
+from clm_core.soil.fit import ROUTES, ClmSumFit, LysmerFit, Norm, Route, fit_clm_sums, fit_lysmer
+from clm_core.soil.formulas import static_stiffness_rectangle
 
-__all__ = ["SoilCalibration", "auto_geometry", "calibrate_profile", "eq6_static_stiffness"]
+__all__ = ["SoilCalibration", "auto_geometry", "calibrate_profile"]
 
 #: Default frequency grid of the rigorous sweep [Hz].
 DEFAULT_FREQS = np.arange(0.0, 151.0, 1.0)
-
-
-def eq6_static_stiffness(length: float, width: float, E: float, nu: float) -> float:
-    """Static stiffness of a rigid 2a x 2b rectangle, Eq. (6) (Pais & Kausel 1988 form) [N/m].
-
-    k_f = E b / (1 - nu^2) [1.55 (a/b)^0.75 + 0.8], a >= b the half-sides.
-    """
-    a, b = max(length, width) / 2.0, min(length, width) / 2.0
-    if b <= 0 or E <= 0:
-        raise ParameterError(f"eq6: length = {length}, width = {width}, E = {E}: need positive values")
-    return float(E * b / (1.0 - nu**2) * (1.55 * (a / b) ** 0.75 + 0.8))
 
 
 def auto_geometry(
@@ -96,6 +90,9 @@ class SoilCalibration:
         Lysmer fit of the single-area impedance (same band and norm).
     eq6_static : float
         Eq. (6) with the top-layer E, nu [N/m].
+    other_route : ClmSumFit or str
+        The same fit by the other route (``"total-first"`` for a joint fit
+        and vice versa), or why it failed (e.g. a non-admissible set).
     """
 
     profile: SoilProfile
@@ -105,6 +102,7 @@ class SoilCalibration:
     single_impedance: NDArray[np.complex128]
     lysmer: LysmerFit
     eq6_static: float
+    other_route: ClmSumFit | str = ""
 
     @property
     def freqs(self) -> NDArray[np.float64]:
@@ -129,8 +127,34 @@ class SoilCalibration:
 
     def clm_response(self) -> NDArray[np.complex128]:
         """Displacements of the fitted CLM chain (same length) per unit centre force [m/N], (nf, N)."""
-        p = self.fit.params
-        return clm_chain_response(self.freqs, n_areas=self.row.geometry.n_areas, **p)
+        return chain_frequency_response(self.fit.params, self.row.geometry.n_areas, self.freqs)
+
+    def fit_quality(self) -> dict[str, Any]:
+        """Quality of the fit of both sums (relative RMS residual, largest relative error) [-].
+
+        With the route, band, norm and active constraints, and the same
+        figures for the other route (or why it failed).
+        """
+        fit, other = self.fit, self.other_route
+        out: dict[str, Any] = {
+            "route": fit.route,
+            "band_hz": list(fit.band),
+            "norm": fit.norm,
+            **fit.quality(),
+            "constrained": list(fit.constrained),
+            "mf_unconstrained": fit.mf_unconstrained,
+        }
+        if isinstance(other, ClmSumFit):
+            out["other_route"] = {
+                "route": other.route,
+                **other.params,
+                **other.quality(),
+                "constrained": list(other.constrained),
+                "mf_unconstrained": other.mf_unconstrained,
+            }
+        elif other:
+            out["other_route"] = {"error": other}
+        return out
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary: fitted values, residuals, band, norm, static stiffness vs Eq. (6)."""
@@ -170,6 +194,7 @@ class SoilCalibration:
                 "sign": "force and displacement positive downwards",
             },
             "fit": self.fit.to_dict(),
+            "fit_quality": self.fit_quality(),
             "sums_at": picks,
             "single_area": {
                 "static_bem": self.single_static,
@@ -195,6 +220,7 @@ def calibrate_profile(
     on_unstable: Literal["raise", "clip"] = "raise",
     full: bool = False,
     progress: Callable[[str, float], None] | None = None,
+    route: Route = "joint",
 ) -> SoilCalibration:
     """Fit CLM parameters to the rigorous response of a row of contact areas.
 
@@ -208,7 +234,7 @@ def calibrate_profile(
     fmin, fmax : float
         Fit band [Hz].
     norm : {"ls", "relative"}
-        Fit norm (:mod:`clm_core.fitting.clm_sums`).
+        Fit norm (:mod:`clm_core.soil.fit`).
     n_areas : int
         Number of areas 2n + 1 (41: n = 20, as in the paper).
     spacing : float
@@ -217,11 +243,16 @@ def calibrate_profile(
         Explicit row and mesh (overrides ``n_areas`` and ``spacing``);
         default :func:`auto_geometry`.
     mass, on_unstable
-        Constraints, see :func:`clm_core.fitting.clm_sums.fit_clm_sums`.
+        Constraints, see :func:`clm_core.soil.fit.fit_clm_sums`.
     full : bool
         Keep the full N x N flexibility (else the centre column only).
     progress : callable, optional
         Called with (stage, fraction of the work done in [0, 1]) during the sweeps.
+    route : {"joint", "total-first"}
+        Both sums at once (default: the CLM is defined by both), or m_f,
+        k_f, d_f from the total sum alone and then k_c, d_c from the
+        alternating sum (:mod:`clm_core.soil.fit`). The other route is
+        fitted as well and kept in ``other_route``.
 
     Returns
     -------
@@ -232,29 +263,43 @@ def calibrate_profile(
         raise ParameterError("freqs: need an increasing 1-D array of >= 3 frequencies >= 0 [Hz]")
     f_top = float(f.max())
     geo = geometry or auto_geometry(profile, f_top, n_areas=n_areas, spacing=spacing)
+    if route not in ROUTES:
+        raise ParameterError(f"route = {route!r}: must be one of {ROUTES}")
+
     def report(stage: str, lo: float, hi: float) -> Callable[[int, int], None] | None:
         if progress is None:
             return None
         return lambda i, n: progress(stage, lo + (hi - lo) * i / n)
 
     row = RowModel(profile, geo, f_max=f_top).sweep(f, full=full, progress=report("row sweep", 0.0, 0.9))
-    fit = fit_clm_sums(
-        f,
-        row.total_sum(),
-        row.alternating_sum(),
-        fmin=fmin,
-        fmax=fmax,
-        norm=norm,
-        mass=mass,
-        on_unstable=on_unstable,
-        n_areas=geo.n_areas,
-    )
+    fits: dict[str, ClmSumFit | str] = {}
+    for r in (route, *(x for x in ROUTES if x != route)):
+        try:
+            fits[r] = fit_clm_sums(
+                f,
+                row.total_sum(),
+                row.alternating_sum(),
+                fmin=fmin,
+                fmax=fmax,
+                norm=norm,
+                mass=mass,
+                on_unstable=on_unstable,
+                n_areas=geo.n_areas,
+                route=r,
+            )
+        except StabilityError as exc:
+            if r == route:
+                raise
+            fits[r] = str(exc)
+    fit = fits.pop(route)
+    assert isinstance(fit, ClmSumFit)
+    other = next(iter(fits.values()))
     single_geo = replace(geo, n_areas=1)
     single = RowModel(profile, single_geo, f_max=f_top).sweep(f, full=False, progress=report("single area", 0.9, 1.0))
     Ksingle = 1.0 / single.centre_column[:, 0]
     lys = fit_lysmer(f, Ksingle, fmin=fmin, fmax=fmax, norm=norm, mass=mass)
     top = profile.top
-    eq6 = eq6_static_stiffness(geo.length, geo.width, top.E, top.nu)
+    eq6 = static_stiffness_rectangle(geo.length, geo.width, top.E, top.nu)
     return SoilCalibration(
         profile=profile,
         row=row,
@@ -263,4 +308,5 @@ def calibrate_profile(
         single_impedance=np.asarray(Ksingle),
         lysmer=lys,
         eq6_static=eq6,
+        other_route=other,
     )

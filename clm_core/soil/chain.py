@@ -1,26 +1,44 @@
-"""The CLM chain of 2n + 1 soil contact areas alone (paper Sec. 4, Eq. 7–20).
+"""The CLM chain of 2n + 1 soil contact areas alone: the one solver (paper Sec. 4, Eq. 7-20).
 
-Area 0 is loaded; the chain has free ends (each end area has one neighbour).
-Equations of motion, Eq. (7)–(8):
+Equations of motion of area i, Eq. (7)-(8), free chain ends (an end area
+has one neighbour):
 
     m_f x_i'' + d_f x_i' + k_f x_i + sum_{j = i +- 1} [d_c (x_i' - x_j') + k_c (x_i - x_j)] = f_i(t)
 
-In the frequency domain (exp(+j w t)) the impedance over the total sum
-F / sum_j X_j equals k_f - w^2 m_f + j w d_f exactly for free ends (Eq. 15–16;
-the coupling terms cancel in the sum), and the impedance over the
-alternating sum tends to (k_f + 4 k_c) - w^2 m_f + j w (d_f + 4 d_c) as n grows
-(Eq. 18; the end areas make it approximate for finite n).
+At the Laplace variable s (s = j w for a harmonic response, exp(+j w t)
+convention; s = sigma + j w for exponentially windowed records) they read
+D(s) X = F with the tridiagonal dynamic stiffness
+
+    D(s) = (k_f + s d_f + s^2 m_f) I + (k_c + s d_c) L,
+
+L the path-graph Laplacian (diagonal 2, ends 1, off-diagonal -1). Everything
+that needs the chain's frequency response calls :func:`chain_response`:
+the soil command and the formulas' checks, the sums fit
+(:mod:`clm_core.soil.fit`), the half-space calibration and the impact-test
+calibration (with the Jacobian). Its analytic Jacobian with respect to
+p = (m_f, k_f, d_f, k_c, d_c) is dX/dp = -D^-1 (dD/dp) X with
+dD/dp = (s^2 I, I, s I, L, s L).
+
+Sums over the areas, j counted from the loaded area (Eq. 15-20): the
+impedance over the total sum F / sum_j X_j equals k_f - w^2 m_f + j w d_f
+exactly for free ends and any chain length (Eq. 15-16; the coupling terms
+cancel in the sum), and the impedance over the alternating sum
+F / sum_j (-1)^j X_j tends to (k_f + 4 k_c) - w^2 m_f + j w (d_f + 4 d_c) as
+n grows (Eq. 17-18; the end areas make it approximate for finite n).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Literal, TypeAlias, overload
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import lapack
 
+from clm_core.checks import chain_min_eigenvalue, finite, odd_count
 from clm_core.errors import ParameterError
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
@@ -29,86 +47,301 @@ from clm_core.params import SoilParams
 Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]
 
+#: Order of the CLM parameters in every Jacobian: m_f [kg], k_f [N/m],
+#: d_f [N s/m], k_c [N/m], d_c [N s/m].
+CHAIN_PARAMS: tuple[str, ...] = ("mf", "kf", "df", "kc", "dc")
 
-def _check(soil: SoilParams, n_areas: int) -> None:
-    if soil.model not in ("lysmer", "clm", "winkler"):
-        raise ParameterError(f"soil.model = {soil.model!r}: the chain needs winkler, lysmer or clm")
-    if n_areas < 1 or n_areas % 2 == 0:
-        raise ParameterError(f"n_areas = {n_areas}: must be odd (2n + 1 areas, loaded one at the centre)")
+#: A soil for the chain: a validated :class:`SoilParams` (Winkler, Lysmer or
+#: CLM), or plain values {name: value} of ``CHAIN_PARAMS`` (missing ones 0),
+#: e.g. a fitted set with m_f = 0 or an iterate of a least-squares fit.
+ChainSoil: TypeAlias = SoilParams | Mapping[str, float]
+
+_ZGBTRF, _ZGBTRS = lapack.get_lapack_funcs(("gbtrf", "gbtrs"), dtype=np.complex128)
 
 
-def chain_matrices(soil: SoilParams, n_areas: int) -> tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix]:
-    """Mass, damping and stiffness matrices of a free-ended chain of ``n_areas`` areas.
+def chain_values(soil: ChainSoil) -> tuple[float, float, float, float, float]:
+    """The five chain parameters (m_f, k_f, d_f, k_c, d_c) of ``soil`` as floats [SI].
+
+    Raises
+    ------
+    ParameterError
+        A rigid soil (it has no contact-area DOFs), an unknown name or a
+        non-finite value.
+    """
+    if isinstance(soil, SoilParams):
+        if soil.model == "rigid":
+            raise ParameterError(f"soil.model = {soil.model!r}: the chain needs winkler, lysmer or clm")
+        return soil.mf, soil.kf, soil.df, soil.kc, soil.dc
+    unknown = set(soil) - set(CHAIN_PARAMS)
+    if unknown:
+        raise ParameterError(f"chain parameters: unknown name(s) {sorted(unknown)}; allowed {', '.join(CHAIN_PARAMS)}")
+    mf, kf, df, kc, dc = (finite(name, soil.get(name, 0.0)) for name in CHAIN_PARAMS)
+    return mf, kf, df, kc, dc
+
+
+def laplace(f: ArrayLike, sigma: float = 0.0) -> CArray:
+    """Laplace variable s = sigma + j 2 pi f [1/s] at frequencies ``f`` [Hz].
+
+    ``sigma`` [1/s] is the decay rate of an exponential window exp(-sigma t)
+    applied to force and response (0 for a harmonic response).
+    """
+    return np.asarray(sigma + 2j * np.pi * np.asarray(f, dtype=float), dtype=np.complex128)
+
+
+def _neighbours(n_areas: int) -> Array:
+    """Number of neighbours of each area of a free chain: the diagonal of L (1 at the ends, 0 for one area)."""
+    nb = np.full(n_areas, 2.0)
+    nb[0] = nb[-1] = 1.0
+    if n_areas == 1:
+        nb[:] = 0.0
+    return nb
+
+
+def chain_matrices(soil: ChainSoil, n_areas: int) -> tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix]:
+    """Mass, damping and stiffness matrices of a free-ended chain of ``n_areas`` areas, Eq. (7)-(8).
+
+    M = m_f I, C = d_f I + d_c L, K = k_f I + k_c L (L the path-graph Laplacian).
+
+    Parameters
+    ----------
+    soil : SoilParams or mapping
+        Winkler, Lysmer or CLM soil (see :data:`ChainSoil`).
+    n_areas : int
+        Number of areas 2n + 1 (odd).
 
     Returns
     -------
     M, C, K : scipy.sparse.csr_matrix, shape (n_areas, n_areas)
         [kg], [N s/m], [N/m].
     """
-    _check(soil, n_areas)
-    n = n_areas
-    links = np.zeros(n)
-    links[:-1] += 1
-    links[1:] += 1  # number of neighbours of each area
-    K = sp.diags([soil.kf + soil.kc * links, -soil.kc * np.ones(n - 1), -soil.kc * np.ones(n - 1)], [0, -1, 1])
-    C = sp.diags([soil.df + soil.dc * links, -soil.dc * np.ones(n - 1), -soil.dc * np.ones(n - 1)], [0, -1, 1])
-    M = sp.diags([soil.mf * np.ones(n)], [0])
+    mf, kf, df, kc, dc = chain_values(soil)
+    n = odd_count("n_areas", n_areas)
+    nb = _neighbours(n)
+    off = np.ones(n - 1)
+    K = sp.diags([kf + kc * nb, -kc * off, -kc * off], [0, -1, 1])
+    C = sp.diags([df + dc * nb, -dc * off, -dc * off], [0, -1, 1])
+    M = sp.diags([np.full(n, mf)], [0])
     return M.tocsr(), C.tocsr(), K.tocsr()
 
 
-def chain_frequency_response(soil: SoilParams, n_areas: int, f: ArrayLike) -> CArray:
-    """Displacements X_j / F of all areas for a unit force on the centre area [m/N].
+@overload
+def chain_response(
+    soil: ChainSoil, n_areas: int, s: ArrayLike, jacobian: Literal[False] = ..., *, loaded: int | None = ...
+) -> tuple[CArray, None]: ...
+
+
+@overload
+def chain_response(
+    soil: ChainSoil, n_areas: int, s: ArrayLike, jacobian: Literal[True], *, loaded: int | None = ...
+) -> tuple[CArray, CArray]: ...
+
+
+@overload
+def chain_response(
+    soil: ChainSoil, n_areas: int, s: ArrayLike, jacobian: bool, *, loaded: int | None = ...
+) -> tuple[CArray, CArray | None]: ...
+
+
+def chain_response(
+    soil: ChainSoil, n_areas: int, s: ArrayLike, jacobian: bool = False, *, loaded: int | None = None
+) -> tuple[CArray, CArray | None]:
+    """Displacements of every area per unit force on one area, at the Laplace variable s (Eq. 9-13).
+
+    Solves D(s) X = e_loaded, D(s) = K + s C + s^2 M of :func:`chain_matrices`,
+    by banded LU with partial pivoting (LAPACK ``zgbtrf``) at each s; the
+    Jacobian reuses the factorisation.
+
+    Parameters
+    ----------
+    soil : SoilParams or mapping
+        Winkler, Lysmer or CLM soil, or plain values of ``CHAIN_PARAMS``.
+    n_areas : int
+        Number of areas 2n + 1 (odd), free ends.
+    s : complex array_like, shape (n_f,)
+        Laplace variable [1/s]: ``laplace(f)`` for the frequency response,
+        ``laplace(f, sigma)`` for exponentially windowed records.
+    jacobian : bool
+        Also return the derivatives with respect to ``CHAIN_PARAMS``.
+    loaded : int, optional
+        Index of the loaded area (default the centre one, ``n_areas // 2``).
 
     Returns
     -------
-    (n_f, n_areas) complex array; column ``n_areas // 2`` is the loaded area.
+    X : complex ndarray, shape (n_f, n_areas)
+        Receptances X_j / F [m/N].
+    dX : complex ndarray, shape (5, n_f, n_areas), or None
+        dX/dp for p = (m_f, k_f, d_f, k_c, d_c) [m/N per kg, per N/m, per N s/m, ...]:
+        dX/dp = -D^-1 (dD/dp) X.
+
+    Raises
+    ------
+    ParameterError
+        Bad ``n_areas`` or ``loaded``, or D(s) singular at some s (e.g. an
+        undamped resonance or a zero stiffness at s = 0).
     """
-    f = np.asarray(f, dtype=float)
-    M, C, K = chain_matrices(soil, n_areas)
-    n = n_areas
-    diag_k, off_k = K.diagonal(), K.diagonal(1)
-    diag_c, off_c = C.diagonal(), C.diagonal(1)
-    F = np.zeros(n, dtype=complex)
-    F[n // 2] = 1.0
-    out = np.empty((f.size, n), dtype=complex)
-    for i, fi in enumerate(f):
-        w = 2 * np.pi * fi
-        ab = np.zeros((3, n), dtype=complex)
-        ab[1] = diag_k - w**2 * soil.mf + 1j * w * diag_c
-        ab[0, 1:] = off_k + 1j * w * off_c
-        ab[2, :-1] = off_k + 1j * w * off_c
-        out[i] = sla.solve_banded((1, 1), ab, F)
-    return out
+    mf, kf, df, kc, dc = chain_values(soil)
+    n = odd_count("n_areas", n_areas)
+    c = n // 2 if loaded is None else int(loaded)
+    if not 0 <= c < n:
+        raise ParameterError(f"loaded = {loaded}: must be an area index 0..{n - 1}")
+    s = np.atleast_1d(np.asarray(s, dtype=np.complex128))
+    if s.ndim != 1:
+        raise ParameterError(f"s: must be 1-D, got shape {s.shape}")
+    nb = _neighbours(n)
+    X = np.empty((s.size, n), dtype=np.complex128)
+    dX = np.empty((5, s.size, n), dtype=np.complex128) if jacobian else None
+    e = np.zeros((n, 1), dtype=np.complex128)
+    e[c, 0] = 1.0
+    ab = np.zeros((4, n), dtype=np.complex128)  # LAPACK band storage, kl = ku = 1 (row 0: fill-in)
+    rhs = np.empty((n, 5), dtype=np.complex128)
+    for i, si in enumerate(s):
+        zc = kc + si * dc
+        ab[0] = 0.0
+        ab[2] = kf + si * df + si * si * mf + nb * zc
+        ab[1, 1:] = -zc
+        ab[3, :-1] = -zc
+        lu, piv, info = _ZGBTRF(ab, 1, 1)
+        if info != 0:
+            raise ParameterError(
+                f"chain_response: D(s) is singular at s = {si:.6g} 1/s (f = {si.imag / (2 * np.pi):.6g} Hz) "
+                f"with mf = {mf:g}, kf = {kf:g}, df = {df:g}, kc = {kc:g}, dc = {dc:g}"
+            )
+        x = _ZGBTRS(lu, 1, 1, e, piv)[0][:, 0]
+        X[i] = x
+        if dX is not None:
+            lap = nb * x
+            if n > 1:
+                lap[:-1] -= x[1:]
+                lap[1:] -= x[:-1]
+            rhs[:, 0] = si * si * x  # dD/dmf X
+            rhs[:, 1] = x  # dD/dkf X
+            rhs[:, 2] = si * x  # dD/ddf X
+            rhs[:, 3] = lap  # dD/dkc X
+            rhs[:, 4] = si * lap  # dD/ddc X
+            dX[:, i, :] = -_ZGBTRS(lu, 1, 1, rhs, piv)[0].T
+    return X, dX
+
+
+def chain_frequency_response(soil: ChainSoil, n_areas: int, f: ArrayLike, *, loaded: int | None = None) -> CArray:
+    """Receptances X_j / F of every area for a unit harmonic force on one area [m/N].
+
+    :func:`chain_response` at s = j 2 pi f.
+
+    Parameters
+    ----------
+    soil : SoilParams or mapping
+        Winkler, Lysmer or CLM soil.
+    n_areas : int
+        Number of areas 2n + 1 (odd).
+    f : array_like, shape (n_f,)
+        Frequencies [Hz].
+    loaded : int, optional
+        Loaded area (default the centre one).
+
+    Returns
+    -------
+    complex ndarray, shape (n_f, n_areas)
+        Column ``n_areas // 2`` is the loaded area by default.
+    """
+    return chain_response(soil, n_areas, laplace(f), loaded=loaded)[0]
+
+
+def _sum_signs(n_areas: int, loaded: int | None) -> tuple[Array, Array]:
+    """Weights of the total and alternating sums, (+1)_j and (-1)^j with j from the loaded area."""
+    c = n_areas // 2 if loaded is None else int(loaded)
+    j = np.arange(n_areas) - c
+    return np.ones(n_areas), np.where(j % 2 == 0, 1.0, -1.0)
 
 
 @dataclass(frozen=True)
 class ChainSums:
-    """Impedances over the two sums of a chain response (Eq. 16 and 18) [N/m]."""
+    """Impedances over the total and the alternating sum of a chain response (Eq. 16 and 18).
+
+    Attributes
+    ----------
+    frequency : ndarray, shape (n_f,)
+        [Hz].
+    total : complex ndarray, shape (n_f,)
+        F / sum_j X_j [N/m].
+    alternating : complex ndarray, shape (n_f,)
+        F / sum_j (-1)^j X_j [N/m], j = 0 at the loaded area.
+    d_total, d_alternating : complex ndarray, shape (5, n_f), or None
+        Derivatives with respect to ``CHAIN_PARAMS`` (model sums with
+        ``jacobian=True`` only) [N/m per unit of the parameter].
+    """
 
     frequency: Array
-    total: CArray  # F / sum_j X_j
-    alternating: CArray  # F / sum_j (-1)^j X_j
+    total: CArray
+    alternating: CArray
+    d_total: CArray | None = None
+    d_alternating: CArray | None = None
 
 
-def chain_sums(frequency: ArrayLike, X: CArray, force: ArrayLike = 1.0) -> ChainSums:
-    """Form F / sum_j X_j and F / sum_j (-1)^j X_j from area responses.
+def chain_sums(frequency: ArrayLike, X: ArrayLike, force: ArrayLike = 1.0, *, loaded: int | None = None) -> ChainSums:
+    """Form F / sum_j X_j and F / sum_j (-1)^j X_j from area responses (Eq. 16, 18).
 
     Parameters
     ----------
-    frequency : (n_f,) array [Hz]
-    X : (n_f, 2n + 1) complex array
-        Area displacements, the loaded area at the centre column.
-    force : scalar or (n_f,) array
+    frequency : array_like, shape (n_f,)
+        [Hz].
+    X : complex array_like, shape (n_f, 2n + 1)
+        Area displacements (measured or modelled) [m or m/N].
+    force : scalar or array_like, shape (n_f,)
         Force spectrum F [N] (1 for receptances).
+    loaded : int, optional
+        Column of the loaded area (default the centre one).
+
+    Returns
+    -------
+    ChainSums
     """
-    X = np.asarray(X)
-    n = X.shape[1]
+    Xa = np.asarray(X)
+    n = Xa.shape[1]
     if n % 2 == 0:
         raise ParameterError(f"X has {n} areas: need 2n + 1 with the loaded area at the centre")
-    j = np.arange(n) - n // 2
-    sign = np.where(j % 2 == 0, 1.0, -1.0)
+    plus, sign = _sum_signs(n, loaded)
     F = np.asarray(force)
-    return ChainSums(np.asarray(frequency, dtype=float), F / X.sum(axis=1), F / (X * sign).sum(axis=1))
+    total = np.asarray(F / (Xa @ plus), dtype=np.complex128)
+    alternating = np.asarray(F / (Xa @ sign), dtype=np.complex128)
+    return ChainSums(np.asarray(frequency, dtype=float), total, alternating)
+
+
+def chain_impedance_sums(
+    soil: ChainSoil, n_areas: int, f: ArrayLike, *, sigma: float = 0.0, jacobian: bool = False
+) -> ChainSums:
+    """The chain's own sums F / sum_j X_j and F / sum_j (-1)^j X_j, with their Jacobian (Eq. 15-18).
+
+    For free ends the total sum equals Eq. (16), k_f + s d_f + s^2 m_f, for any
+    chain length, and so does its Jacobian (s^2, 1, s, 0, 0); the alternating
+    sum and its Jacobian tend to Eq. (18) and (s^2, 1, s, 4, 4 s) as n grows.
+
+    Parameters
+    ----------
+    soil : SoilParams or mapping
+        Winkler, Lysmer or CLM soil.
+    n_areas : int
+        Number of areas 2n + 1 (odd), centre one loaded.
+    f : array_like, shape (n_f,)
+        Frequencies [Hz].
+    sigma : float
+        Decay rate of an exponential window [1/s] (s = sigma + j 2 pi f).
+    jacobian : bool
+        Also return the derivatives with respect to ``CHAIN_PARAMS``:
+        d(F / sum) = -(F / sum)^2 sum dX.
+
+    Returns
+    -------
+    ChainSums
+    """
+    fa = np.atleast_1d(np.asarray(f, dtype=float))
+    X, dX = chain_response(soil, n_areas, laplace(fa, sigma), jacobian)
+    plus, sign = _sum_signs(n_areas, None)
+    tot, alt = 1.0 / (X @ plus), 1.0 / (X @ sign)
+    d_tot = d_alt = None
+    if dX is not None:
+        d_tot = -(tot**2) * (dX @ plus)
+        d_alt = -(alt**2) * (dX @ sign)
+    return ChainSums(fa, tot, alt, d_tot, d_alt)
 
 
 @dataclass(frozen=True)
@@ -148,7 +381,19 @@ def chain_time_response(
     t0: float = 0.05,
     td: float = 0.001,
 ) -> ChainTimeResponse:
-    """Response of the chain to the Eq. (1) pulse on the centre area (Newmark, from rest)."""
+    """Response of the chain to the Eq. (1) pulse on the centre area (Newmark, from rest).
+
+    Parameters
+    ----------
+    soil : SoilParams
+        Winkler, Lysmer or CLM soil.
+    n_areas : int
+        Number of areas 2n + 1 (odd).
+    dt, duration : float
+        Time step and record length [s].
+    A, t0, td : float
+        Pulse amplitude [N], time [s] and duration parameter [s] of Eq. (1).
+    """
     M, C, K = chain_matrices(soil, n_areas)
     n_steps = int(round(duration / dt))
     t = np.arange(n_steps + 1) * dt
@@ -159,7 +404,7 @@ def chain_time_response(
     return ChainTimeResponse(np.asarray(t, dtype=np.float64), p, x, v)
 
 
-def chain_damping_min_eigenvalue(soil: SoilParams, n_areas: int) -> float:
-    """Smallest eigenvalue of the chain damping matrix [N s/m] (stability, Sec. 4.2)."""
-    _, C, _ = chain_matrices(soil, n_areas)
-    return float(np.linalg.eigvalsh(C.toarray())[0])
+def chain_damping_min_eigenvalue(soil: ChainSoil, n_areas: int) -> float:
+    """Smallest eigenvalue of the chain damping matrix d_f I + d_c L [N s/m] (stability, Sec. 4.2)."""
+    _, _, df, _, dc = chain_values(soil)
+    return chain_min_eigenvalue(df, dc, odd_count("n_areas", n_areas))

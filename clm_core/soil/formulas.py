@@ -15,25 +15,87 @@ from numpy.typing import ArrayLike, NDArray
 from clm_core.errors import ParameterError
 from clm_core.params import SoilParams
 from clm_core.profile import Layer
+from clm_core.soil.chain import ChainSoil, chain_values
 
 
 def impedance_lysmer(w: ArrayLike, mf: float, kf: float, df: float) -> NDArray[np.complex128]:
-    """Vertical impedance of Lysmer's analogue, Eq. (3): K_v = k_f - w^2 m_f + j w d_f [N/m]."""
+    """Vertical impedance of Lysmer's analogue, Eq. (3): K_v = k_f - w^2 m_f + j w d_f [N/m].
+
+    Parameters
+    ----------
+    w : array_like
+        Circular frequency [rad/s].
+    mf, kf, df : float
+        Added mass [kg], stiffness [N/m], dashpot [N s/m].
+    """
     w = np.asarray(w, dtype=float)
-    return kf - w**2 * mf + 1j * w * df
+    return np.asarray(kf - w**2 * mf + 1j * w * df, dtype=np.complex128)
 
 
-def total_sum_impedance(w: ArrayLike, soil: SoilParams) -> NDArray[np.complex128]:
-    """CLM impedance over the total sum, Eq. (15)–(16): F / sum_j X_j [N/m]."""
-    return impedance_lysmer(w, soil.mf, soil.kf, soil.df)
+def sum_impedances(s: ArrayLike, soil: ChainSoil) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """The CLM impedances over the total and the alternating sum, Eq. (16) and (18), at Laplace s [N/m].
+
+    S = k_f + s d_f + s^2 m_f (Eq. 16) and A = (k_f + 4 k_c) + s (d_f + 4 d_c) + s^2 m_f
+    (Eq. 18); with s = j w they read k_f - w^2 m_f + j w d_f and
+    (k_f + 4 k_c) - w^2 m_f + j w (d_f + 4 d_c). Eq. (16) is exact for a free
+    chain of any length, Eq. (18) for the infinite chain
+    (:func:`clm_core.soil.chain.chain_impedance_sums` gives the finite chain's).
+
+    Parameters
+    ----------
+    s : complex array_like
+        Laplace variable [1/s] (:func:`clm_core.soil.chain.laplace`).
+    soil : SoilParams or mapping
+        Soil, or plain values of ``CHAIN_PARAMS`` (e.g. a fitted set).
+
+    Returns
+    -------
+    total, alternating : complex ndarray, shape of ``s``
+    """
+    mf, kf, df, kc, dc = chain_values(soil)
+    sa = np.asarray(s, dtype=np.complex128)
+    total = kf + sa * df + sa * sa * mf
+    return np.asarray(total), np.asarray(total + 4.0 * (kc + sa * dc))
 
 
-def alternating_sum_impedance(w: ArrayLike, soil: SoilParams) -> NDArray[np.complex128]:
+def sum_impedance_jacobian(s: ArrayLike) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Derivatives of Eq. (16) and (18) with respect to ``CHAIN_PARAMS`` (m_f, k_f, d_f, k_c, d_c).
+
+    The formulas are linear in the parameters, so the Jacobian does not
+    depend on them: dS/dp = (s^2, 1, s, 0, 0), dA/dp = (s^2, 1, s, 4, 4 s).
+    It is the design matrix of the sums fit (:mod:`clm_core.soil.fit`).
+
+    Parameters
+    ----------
+    s : complex array_like, shape (n,)
+        Laplace variable [1/s].
+
+    Returns
+    -------
+    d_total, d_alternating : complex ndarray, shape (5, n)
+        [N/m per unit of each parameter].
+    """
+    sa = np.atleast_1d(np.asarray(s, dtype=np.complex128))
+    one, zero = np.ones_like(sa), np.zeros_like(sa)
+    d_total = np.stack([sa * sa, one, sa, zero, zero])
+    d_alternating = np.stack([sa * sa, one, sa, 4.0 * one, 4.0 * sa])
+    return d_total, d_alternating
+
+
+def total_sum_impedance(w: ArrayLike, soil: ChainSoil) -> NDArray[np.complex128]:
+    """CLM impedance over the total sum, Eq. (15)-(16): F / sum_j X_j = k_f - w^2 m_f + j w d_f [N/m].
+
+    ``w`` [rad/s]; exact for a free chain of any length.
+    """
+    return sum_impedances(1j * np.asarray(w, dtype=float), soil)[0]
+
+
+def alternating_sum_impedance(w: ArrayLike, soil: ChainSoil) -> NDArray[np.complex128]:
     """CLM impedance over the alternating sum, Eq. (18): F / sum_j (-1)^j X_j [N/m].
 
-    (k_f + 4 k_c) - w^2 m_f + j w (d_f + 4 d_c); exact for an infinite chain.
+    (k_f + 4 k_c) - w^2 m_f + j w (d_f + 4 d_c) at ``w`` [rad/s]; exact for an infinite chain.
     """
-    return impedance_lysmer(w, soil.mf, soil.kf + 4 * soil.kc, soil.df + 4 * soil.dc)
+    return sum_impedances(1j * np.asarray(w, dtype=float), soil)[1]
 
 
 def static_stiffness_circle(R: float, E: float, nu: float) -> float:

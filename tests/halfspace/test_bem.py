@@ -10,8 +10,8 @@ from scipy import integrate
 
 from clm_core.errors import ParameterError
 from clm_core.halfspace.bem import RowGeometry, RowModel, disk_impedance, rect_inverse_distance, richardson
-from clm_core.halfspace.calibrate import eq6_static_stiffness
 from clm_core.profile import Layer, SoilProfile, load_profile
+from clm_core.soil.formulas import static_stiffness_rectangle
 
 NU = 1.0 / 3.0
 
@@ -103,7 +103,7 @@ def test_single_sleeper_area_static_vs_eq6() -> None:
         _, col = RowModel(prof, geo, f_max=0.0).solve(0.0)
         vals.append(1.0 / col[0].real)
     K = float(richardson(vals[0], vals[1], order=2.0))
-    eq6 = eq6_static_stiffness(2.5, 0.285, prof.top.E, prof.top.nu)
+    eq6 = static_stiffness_rectangle(2.5, 0.285, prof.top.E, prof.top.nu)
     assert K / eq6 == pytest.approx(1.0, abs=0.05)
     assert vals[1] < K  # the constant-pressure BEM converges from below
 

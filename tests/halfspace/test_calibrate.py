@@ -11,8 +11,9 @@ import yaml
 
 from clm_core.cli import main
 from clm_core.halfspace.bem import RowGeometry
-from clm_core.halfspace.calibrate import calibrate_profile
+from clm_core.halfspace.calibrate import SoilCalibration, calibrate_profile
 from clm_core.profile import load_profile
+from clm_core.soil.fit import ClmSumFit
 
 
 def test_calibration_small_row_is_consistent() -> None:
@@ -91,13 +92,69 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: li
     assert match in err and err.count("\n") == 1
 
 
+@pytest.fixture(scope="module")
+def mevergnies_row() -> SoilCalibration:
+    """41 areas on the Mevergnies half-space, 0-100 Hz, fitted in 0-80 Hz (ls): about 30 s."""
+    return calibrate_profile(load_profile("mevergnies"), freqs=np.arange(0.0, 101.0, 1.0), fmin=0.0, fmax=80.0)
+
+
 @pytest.mark.slow
-def test_mevergnies_full_row_against_table1() -> None:
+def test_mevergnies_full_row_against_table1(mevergnies_row: SoilCalibration) -> None:
     """41 areas, 0-100 Hz: k_f, d_f, d_c near Table 1, k_c lower, m_f ~ 0 (see docs/halfspace.md)."""
-    cal = calibrate_profile(load_profile("mevergnies"), freqs=np.arange(0.0, 101.0, 1.0), fmin=0.0, fmax=80.0)
-    fit = cal.fit
+    fit = mevergnies_row.fit
     assert fit.df == pytest.approx(680e3, rel=0.15)
     assert fit.dc == pytest.approx(-155e3, rel=0.15)
     assert fit.kf == pytest.approx(72e6, rel=0.3)
     assert fit.kc < 0.6 * 160e6
     assert fit.mf < 100.0
+
+
+@pytest.mark.slow
+def test_mevergnies_joint_fit_gives_positive_mass(mevergnies_row: SoilCalibration) -> None:
+    """Issue 14, item 5: the total sum alone wants m_f < 0 (clipped to 0); both sums jointly give m_f > 0."""
+    cal = mevergnies_row
+    fit, other = cal.fit, cal.other_route
+    assert fit.route == "joint" and fit.mf > 0 and fit.constrained == ()
+    assert isinstance(other, ClmSumFit) and other.route == "total-first"
+    assert other.mf == 0.0 and "mf=0" in other.constrained and other.mf_unconstrained < -100.0
+    # the joint fit is the better fit of the two sums together (ls norm: sum of squared errors in the band)
+    f = cal.freqs[(cal.freqs >= 0.0) & (cal.freqs <= 80.0)]
+    i = np.searchsorted(cal.freqs, f)
+
+    def cost(r: ClmSumFit) -> float:
+        return float(
+            np.sum(np.abs(r.total_sum(f) - cal.total_sum[i]) ** 2)
+            + np.sum(np.abs(r.alternating_sum(f) - cal.alternating_sum[i]) ** 2)
+        )
+
+    assert cost(fit) < cost(other)
+    # the quality of both fits is reported, for both routes
+    q = cal.summary()["fit_quality"]
+    assert q["route"] == "joint" and q["norm"] == "ls" and q["band_hz"] == [0.0, 80.0]
+    for key in ("total", "alternating"):
+        assert 0.0 < q[key]["residual"] < 0.15 and q[key]["max_rel_error"] > q[key]["residual"]
+        assert q["other_route"][key]["residual"] == pytest.approx(other.quality()[key]["residual"])
+    assert q["other_route"]["mf"] == 0.0 and q["other_route"]["mf_unconstrained"] < -100.0
+
+
+@pytest.mark.parametrize("route", ["joint", "total-first"])
+def test_cli_route_and_both_fit_qualities(tmp_path: Path, capsys: pytest.CaptureFixture[str], route: str) -> None:
+    """``--route`` picks the fit (joint by default); summary, soil.yaml and stdout give the quality of both sums."""
+    out = tmp_path / "cal"
+    argv = ["soil-calibrate", "--profile", "medium", "--out", str(out), "--areas", "5", "--fmax", "40",
+            "--sweep-max", "40", "--df", "5", "--no-plots"]
+    assert main(argv + ([] if route == "joint" else ["--route", route])) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    q = summary["fit_quality"]
+    assert summary["fit"]["route"] == q["route"] == summary["command"]["route"] == route
+    other = "total-first" if route == "joint" else "joint"
+    assert q["other_route"]["route"] == other
+    for key in ("total", "alternating"):
+        assert q[key]["residual"] == pytest.approx(summary["fit"][f"residual_{key}"])
+        assert q[key]["max_rel_error"] == pytest.approx(summary["fit"][f"max_rel_error_{key}"])
+        assert q["other_route"][key]["residual"] > 0
+    source = yaml.safe_load((out / "soil.yaml").read_text())["source"]
+    assert f"route '{route}'" in source and "residual total sum" in source and "alternating sum" in source
+    text = capsys.readouterr().out
+    assert "total sum (Eq. 16) residual" in text and "alternating sum (Eq. 18) residual" in text
+    assert f"{other} route:" in text

@@ -7,14 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from clm_core.checks import chain_min_eigenvalue, clm_chain_admissible
 from clm_core.errors import ParameterError, StabilityError
-from clm_core.fitting.clm_sums import (
-    chain_matrix_min_eigenvalue,
-    check_chain_positive_definite,
-    clm_chain_response,
-    fit_clm_sums,
-    fit_lysmer,
-)
+from clm_core.soil.chain import chain_frequency_response
+from clm_core.soil.fit import fit_clm_sums, fit_lysmer
 
 TABLE1 = {"mf": 380.0, "kf": 72e6, "df": 680e3, "kc": 160e6, "dc": -155e3}
 
@@ -66,7 +62,7 @@ def test_recovers_clm_parameters_from_chain_sums(norm: str) -> None:
 def test_chain_response_helper_matches_independent_solve() -> None:
     f = np.array([0.0, 7.0, 55.0])
     _, _, X = chain_sums(f, TABLE1, 11)
-    np.testing.assert_allclose(clm_chain_response(f, n_areas=11, **TABLE1), X, rtol=1e-12)
+    np.testing.assert_allclose(chain_frequency_response(TABLE1, 11, f), X, rtol=1e-12)
 
 
 def test_band_selects_frequencies() -> None:
@@ -74,8 +70,13 @@ def test_band_selects_frequencies() -> None:
     S, A, _ = chain_sums(f, TABLE1, 41)
     S = S.copy()
     S[f > 100] *= 3.0  # garbage outside the band must not matter
-    fit = fit_clm_sums(f, S, A, fmin=10.0, fmax=100.0)
+    # total-first: k_f comes from Eq. (16) alone, exact for the free 41-area chain
+    fit = fit_clm_sums(f, S, A, fmin=10.0, fmax=100.0, route="total-first")
     assert fit.kf == pytest.approx(72e6, rel=1e-9)
+    assert fit.n_points == 91
+    # joint (default): Eq. (18) holds to ~1e-4 for 41 areas, which reaches k_f at ~1e-6
+    fit = fit_clm_sums(f, S, A, fmin=10.0, fmax=100.0)
+    assert fit.kf == pytest.approx(72e6, rel=1e-5)
     assert fit.n_points == 91
 
 
@@ -119,15 +120,15 @@ def test_damping_matrix_eigenvalue_bound(N: int, dc: float) -> None:
     for a in range(N - 1):
         C[a, a + 1] = C[a + 1, a] = -dc
     lam = np.linalg.eigvalsh(C).min()
-    assert chain_matrix_min_eigenvalue(df, dc, N) == pytest.approx(lam, rel=1e-9, abs=1e-6)
+    assert chain_min_eigenvalue(df, dc, N) == pytest.approx(lam, rel=1e-9, abs=1e-6)
     # the length-independent bound df + 4 min(dc, 0) is never above the finite-chain value
-    assert chain_matrix_min_eigenvalue(df, dc) <= lam + 1e-6
+    assert chain_min_eigenvalue(df, dc) <= lam + 1e-6
 
 
 def test_check_positive_definite_messages() -> None:
-    check_chain_positive_definite(**{"df": 680e3, "dc": -155e3, "kf": 72e6, "kc": 160e6, "mf": 380.0})
+    clm_chain_admissible(**{"df": 680e3, "dc": -155e3, "kf": 72e6, "kc": 160e6, "mf": 380.0})
     with pytest.raises(StabilityError, match="kc = -2e\\+07"):
-        check_chain_positive_definite(df=680e3, dc=-155e3, kf=72e6, kc=-20e6, mf=380.0)
+        clm_chain_admissible(df=680e3, dc=-155e3, kf=72e6, kc=-20e6, mf=380.0)
 
 
 def test_fit_lysmer_exact() -> None:
@@ -159,3 +160,80 @@ def test_bad_arguments(kwargs: dict[str, object], match: str) -> None:
 def test_shape_mismatch() -> None:
     with pytest.raises(ParameterError, match="shape"):
         fit_clm_sums(np.arange(5.0), np.ones(4), np.ones(5), fmin=0.0, fmax=4.0)
+
+
+# ----------------------------------------------------------------------------- joint fit of both sums (issue 14)
+
+
+@pytest.mark.parametrize("norm", ["ls", "relative"])
+def test_joint_fit_recovers_all_five_parameters(norm: str) -> None:
+    """Sums of a known 81-area chain (Eq. 18 exact to ~1e-11 there): the joint fit returns the chain."""
+    f = np.arange(0.0, 121.0, 1.0)
+    S, A, _ = chain_sums(f, TABLE1, 81)
+    fit = fit_clm_sums(f, S, A, fmin=0.0, fmax=120.0, norm=norm, n_areas=81)  # type: ignore[arg-type]
+    assert fit.route == "joint" and fit.constrained == ()
+    for key, value in TABLE1.items():
+        assert getattr(fit, key) == pytest.approx(value, rel=1e-8), key
+    assert fit.mf_unconstrained == fit.mf
+    q = fit.quality()
+    assert q["total"]["residual"] < 1e-9 and q["alternating"]["residual"] < 1e-9
+
+
+def _stacked(f: np.ndarray, S: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The joint least-squares system written out by hand: unknowns (mf, kf, df, kc, dc), real rows."""
+    w = 2 * np.pi * f
+    z, o = np.zeros_like(w), np.ones_like(w)
+    re_S = np.stack([-(w**2), o, z, z, z], 1)
+    im_S = np.stack([z, z, w, z, z], 1)
+    re_A = np.stack([-(w**2), o, z, 4 * o, z], 1)
+    im_A = np.stack([z, z, w, z, 4 * w], 1)
+    return np.vstack([re_S, im_S, re_A, im_A]), np.concatenate([S.real, S.imag, A.real, A.imag])
+
+
+@pytest.mark.parametrize(("curv_S", "curv_A"), [(150.0, -75.0), (-400.0, 200.0), (600.0, 600.0)])
+def test_joint_fit_is_the_bounded_least_squares_optimum(curv_S: float, curv_A: float) -> None:
+    """Against scipy's bounded linear least squares (m_f >= 0) on non-CLM data; joint beats total-first."""
+    from scipy.optimize import lsq_linear
+
+    f = np.arange(0.0, 81.0, 1.0)
+    w = 2 * np.pi * f
+    rng = np.random.default_rng(3)
+    S0, A0, _ = chain_sums(f, TABLE1, 41)
+    # sums that no CLM matches: extra curvature (of either sign) and noise
+    S = S0 + curv_S * w**2 + 2e6 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size))
+    A = A0 + curv_A * w**2 + 5e6 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size))
+    G, y = _stacked(f, S, A)
+    scale = np.linalg.norm(G, axis=0)
+    ref = lsq_linear(G / scale, y, bounds=([0, -np.inf, -np.inf, -np.inf, -np.inf], np.inf), tol=1e-14).x / scale
+    fit = fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0)
+    got = np.array([fit.mf, fit.kf, fit.df, fit.kc, fit.dc])
+    np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-6)
+    assert ("mf=0" in fit.constrained) == (fit.mf_unconstrained < 0) == (curv_A > 500)  # the bound is exercised
+    seq = fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0, route="total-first")
+    cost = {r.route: float(np.sum((G @ [r.mf, r.kf, r.df, r.kc, r.dc] - y) ** 2)) for r in (fit, seq)}
+    assert cost["joint"] <= cost["total-first"] * (1 + 1e-12)
+
+
+def test_total_first_route_is_the_sequential_fit() -> None:
+    """total-first: a parabola in w through Re S, a line through Im S, then offsets of A (Sec. 4.1)."""
+    f = np.arange(0.0, 81.0, 2.0)
+    w = 2 * np.pi * f
+    rng = np.random.default_rng(5)
+    S0, A0, _ = chain_sums(f, TABLE1, 21)
+    S = S0 * (1 + 0.03 * rng.standard_normal(f.size))
+    A = A0 * (1 + 0.03 * rng.standard_normal(f.size))
+    V = np.stack([np.ones_like(w), -(w**2)], 1)
+    kf, mf = np.linalg.lstsq(V, S.real, rcond=None)[0]
+    df = float(w @ S.imag / (w @ w))
+    kc = float(np.mean(A.real - kf + w**2 * mf)) / 4
+    dc = (float(w @ A.imag / (w @ w)) - df) / 4
+    fit = fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0, route="total-first", mass="free")
+    assert (fit.mf, fit.kf, fit.df, fit.kc, fit.dc) == pytest.approx((mf, kf, df, kc, dc), rel=1e-9)
+    assert fit.route == "total-first"
+
+
+def test_route_is_checked() -> None:
+    f = np.arange(0.0, 81.0, 10.0)
+    S, A, _ = chain_sums(f, TABLE1, 5)
+    with pytest.raises(ParameterError, match="route = 'both'"):
+        fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0, route="both")  # type: ignore[arg-type]
