@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from clm_core.calibration.synthetic import add_noise, simulate_impact, write_bag
+from clm_core.synthetic import add_noise, simulate_impact, write_bag
 from clm_core.cli import main
 from clm_core.params import load_params_file, load_soil, load_track
 

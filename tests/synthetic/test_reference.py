@@ -41,11 +41,11 @@ import pytest
 import yaml
 
 from clm_core.calibration import CalibrationResult, calibrate
-from clm_core.calibration.synthetic import T0_NS
+from clm_core.synthetic.writer import T0_NS
 from clm_core.cli import main
 from clm_core.errors import ParameterError
 from clm_core.fitting.clm_sums import ClmSumFit, fit_clm_sums
-from clm_core.halfspace.impact_bag import (
+from clm_core.synthetic.reference import (
     RigorousReference,
     reference_impact_record,
     write_reference_impact_bag,

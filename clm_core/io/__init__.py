@@ -1,0 +1,11 @@
+"""Edges of the core: time base, messages and bags (no ROS middleware needed).
+
+- :mod:`clm_core.io.timebase`: ``NS`` and the stamp <-> integer-nanosecond helpers;
+- :mod:`clm_core.io.messages`: ``clm_msgs`` <-> domain data (rosbags flavour), the
+  type store built from the ``clm_msgs`` definitions, and a numpy CDR codec;
+- :mod:`clm_core.io.bags`: the one rosbag2 reader and writer (format version 9, as
+  ``ros2 bag record`` of ROS 2 Jazzy writes it);
+- :mod:`clm_core.io.errors`: :class:`MessageError` and :class:`BagError`.
+
+Submodules are imported on use: importing this package is cheap.
+"""

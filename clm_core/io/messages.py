@@ -1,0 +1,813 @@
+"""``clm_msgs`` messages <-> domain data, rosbags flavour, and a numpy CDR codec.
+
+Three parts, no rclpy anywhere (the rclpy flavour, ``clm_ros.conversions``,
+is built on this module):
+
+1. **Definitions and type store.** The ``.msg``/``.srv`` files of the
+   ``clm_msgs`` package are the one source of truth. They are found, in this
+   order, in ``<prefix>/share/clm_msgs`` for each prefix of
+   ``AMENT_PREFIX_PATH`` and ``sys.prefix`` (what rosidl generated rclpy's
+   classes from), in the source tree ``ros2_ws/src/clm_msgs``, and in the copy
+   packaged with clm_core (``clm_core/io/interfaces/clm_msgs``, identical by
+   test). :func:`typestore` is rosbags' Jazzy store plus every clm_msgs type
+   (services as ``clm_msgs/srv/<Name>_Request``, ``_Response`` and
+   ``_Event``); :func:`message_definition` gives the text rosbag2 embeds in a
+   bag for a type: the ``.msg`` files *with their comments* (units, sign
+   convention), dependencies appended as rosbag2 Jazzy's
+   ``LocalMessageDefinitionSource`` does.
+2. **Domain data.** :func:`frame_from_msg` (``WheelLoads`` -> the online
+   model's frame), :func:`sleeper_fields` / :func:`wheel_fields` (a response
+   -> message arrays), and rosbags message builders.
+3. **CDR codec** (XCDR1, as ROS 2 Jazzy puts on the wire): ``WheelLoads``,
+   ``SleeperResponse`` and ``WheelRailResponse`` to and from numpy arrays
+   with ``np.frombuffer`` and preallocated buffers, no per-element Python.
+   Decoders accept trailing bytes (rclpy pads) and refuse truncation, absurd
+   sequence lengths, a bad encapsulation, unterminated or non-UTF-8 strings
+   and stamps outside ``builtin_interfaces/Time``, always with
+   :class:`~clm_core.io.errors.MessageError`.
+
+Units are SI; forces and displacements positive downwards (the ``.msg``
+comments). Stamps are integer nanoseconds (:mod:`clm_core.io.timebase`).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+import struct
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from clm_core.io.errors import MessageError
+from clm_core.io.timebase import INT32_MAX, INT32_MIN, NS, ns_to_stamp, stamp_ns
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    from rosbags.interfaces.typing import Typesdict
+    from rosbags.typesys.store import Typestore
+
+    from clm_core.online import ResponseFrame, WheelFrame
+
+__all__ = [
+    "PACKAGE",
+    "SLEEPER_RESPONSE",
+    "WHEEL_LOADS",
+    "WHEEL_RAIL_RESPONSE",
+    "SleeperResponseData",
+    "WheelLoadsData",
+    "WheelRailResponseData",
+    "clm_types",
+    "decode_sleeper_response",
+    "decode_wheel_loads",
+    "decode_wheel_rail_response",
+    "encode_sleeper_response",
+    "encode_wheel_loads",
+    "encode_wheel_rail_response",
+    "frame_from_msg",
+    "interface_dir",
+    "message_definition",
+    "packaged_interface_dir",
+    "response_msgs",
+    "sleeper_fields",
+    "source_interface_dir",
+    "typestore",
+    "wheel_fields",
+    "wheel_loads_msg",
+]
+
+#: Name of the interface package.
+PACKAGE = "clm_msgs"
+WHEEL_LOADS = "clm_msgs/msg/WheelLoads"
+SLEEPER_RESPONSE = "clm_msgs/msg/SleeperResponse"
+WHEEL_RAIL_RESPONSE = "clm_msgs/msg/WheelRailResponse"
+
+# ============================================================================ definitions
+
+_SEPARATOR = re.compile(r"^---[ \t]*\r?$", re.MULTILINE)
+# Event message rosidl generates for every service (Jazzy service introspection), .msg syntax.
+_SERVICE_EVENT = "service_msgs/ServiceEventInfo info\n{name}_Request[<=1] request\n{name}_Response[<=1] response\n"
+# rosbag2 Jazzy (local_message_definition_source.cpp): field types of a .msg text, and the delimiter.
+_MSG_FIELD_TYPE = re.compile(r"(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+")
+_PRIMITIVES = frozenset(
+    "bool byte char float32 float64 int8 uint8 int16 uint16 int32 uint32 int64 uint64 string".split()
+)
+_DELIMITER = "=" * 80 + "\n"
+
+
+def source_interface_dir() -> Path:
+    """``ros2_ws/src/clm_msgs`` of the source tree (may not exist in an installed clm_core)."""
+    return Path(__file__).resolve().parents[2] / "ros2_ws" / "src" / PACKAGE
+
+
+def packaged_interface_dir() -> Path:
+    """The copy of the clm_msgs definitions packaged with clm_core (identical to the source tree, by test)."""
+    return Path(__file__).resolve().parent / "interfaces" / PACKAGE
+
+
+def _prefixes() -> list[Path]:
+    found = [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    return [*found, Path(sys.prefix)]
+
+
+def interface_dir(prefixes: Iterable[str | os.PathLike[str]] | None = None) -> Path:
+    """Directory holding ``msg/*.msg`` and ``srv/*.srv`` of ``clm_msgs``.
+
+    Parameters
+    ----------
+    prefixes : iterable of path-like, optional
+        Install prefixes to search for ``share/clm_msgs`` instead of
+        ``AMENT_PREFIX_PATH`` and ``sys.prefix``; the source tree and the
+        packaged copy are still the fallbacks.
+
+    Returns
+    -------
+    pathlib.Path
+        The first of: ``<prefix>/share/clm_msgs``, ``ros2_ws/src/clm_msgs``,
+        the packaged copy, that has ``msg/*.msg`` files.
+
+    Raises
+    ------
+    MessageError
+        None of them has the definitions.
+    """
+    search = [Path(p) for p in prefixes] if prefixes is not None else _prefixes()
+    candidates = [p / "share" / PACKAGE for p in search] + [source_interface_dir(), packaged_interface_dir()]
+    for cand in candidates:
+        if any((cand / "msg").glob("*.msg")):
+            return cand
+    raise MessageError(
+        f"no {PACKAGE} interface definitions (msg/*.msg) found; looked in: {', '.join(map(str, candidates))}"
+    )
+
+
+def _read(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise MessageError(f"cannot read interface definition {path}: {exc}") from exc
+
+
+def _parse(text: str, typename: str, path: Path) -> Typesdict:
+    from rosbags.typesys import TypesysError, get_types_from_msg
+
+    try:
+        return get_types_from_msg(text, typename)
+    except TypesysError as exc:
+        raise MessageError(f"cannot parse {path} as {typename}: {exc}") from exc
+
+
+def _rename_refs(types: Typesdict, mapping: dict[str, str]) -> Typesdict:
+    """Rename types and the references to them in field descriptors."""
+
+    def walk(obj: Any) -> Any:
+        if isinstance(obj, str):
+            return mapping.get(obj, obj)
+        if isinstance(obj, tuple):
+            return tuple(walk(item) for item in obj)
+        return obj
+
+    return {
+        mapping.get(name, name): (consts, [(fname, walk(desc)) for fname, desc in fields])
+        for name, (consts, fields) in types.items()
+    }
+
+
+def _service_types(path: Path, known: Typesdict) -> Typesdict:
+    """A .srv file as its _Request, _Response and _Event types (parsed as messages, moved to ``srv/``)."""
+    parts = _SEPARATOR.split(_read(path))
+    if len(parts) != 2:
+        raise MessageError(f'{path}: expected one "---" line between request and response')
+    texts = {"Request": parts[0], "Response": parts[1], "Event": _SERVICE_EVENT.format(name=path.stem)}
+    parsed: Typesdict = {}
+    mapping: dict[str, str] = {}
+    for suffix, text in texts.items():
+        as_msg = f"{PACKAGE}/msg/{path.stem}_{suffix}"
+        if as_msg in known:
+            raise MessageError(f"{path}: message {as_msg} clashes with the service part of the same name")
+        parsed.update(_parse(text, as_msg, path))
+        mapping[as_msg] = f"{PACKAGE}/srv/{path.stem}_{suffix}"
+    return _rename_refs(parsed, mapping)
+
+
+@functools.lru_cache(maxsize=8)
+def _clm_types_cached(root: Path) -> Typesdict:
+    types: Typesdict = {}
+    msg_files = sorted((root / "msg").glob("*.msg"))
+    if not msg_files:
+        raise MessageError(f"no msg/*.msg files in {root}")
+    for path in msg_files:
+        types.update(_parse(_read(path), f"{PACKAGE}/msg/{path.stem}", path))
+    for path in sorted((root / "srv").glob("*.srv")):
+        types.update(_service_types(path, types))
+    return types
+
+
+def clm_types(directory: str | os.PathLike[str] | None = None) -> Typesdict:
+    """Parse every ``clm_msgs`` message and service definition.
+
+    Parameters
+    ----------
+    directory : path-like, optional
+        Package directory with ``msg/`` and ``srv/``; default :func:`interface_dir`.
+
+    Returns
+    -------
+    dict
+        rosbags type dictionary (``'clm_msgs/msg/WheelLoads'``,
+        ``'clm_msgs/srv/Calibrate_Request'``, ...), for ``Typestore.register``.
+
+    Raises
+    ------
+    MessageError
+        A definition cannot be found, read or parsed.
+    """
+    root = Path(directory) if directory is not None else interface_dir()
+    return dict(_clm_types_cached(root.resolve()))
+
+
+def typestore(directory: str | os.PathLike[str] | None = None) -> Typestore:
+    """A new ROS 2 Jazzy rosbags type store with the ``clm_msgs`` types.
+
+    Parameters
+    ----------
+    directory : path-like, optional
+        Package directory with ``msg/`` and ``srv/``; default :func:`interface_dir`.
+
+    Returns
+    -------
+    rosbags.typesys.store.Typestore
+        ``Stores.ROS2_JAZZY`` plus every clm_msgs type; a new object on each
+        call (registering more types in it does not affect other callers).
+
+    Raises
+    ------
+    MessageError
+        The definitions cannot be found or parsed, or clash with the store.
+    """
+    from rosbags.typesys import Stores, TypesysError, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    try:
+        store.register(clm_types(directory))
+    except TypesysError as exc:
+        raise MessageError(f"cannot register the {PACKAGE} types: {exc}") from exc
+    return store
+
+
+@functools.lru_cache(maxsize=256)
+def _own_text(name: str, clm_dir: Path) -> str:
+    """The .msg text of one type ``pkg/Name`` or ``pkg/msg/Name`` (no dependencies)."""
+    pkg, *_, short = name.split("/")
+    if pkg == PACKAGE:
+        return _read(clm_dir / "msg" / f"{short}.msg")
+    for prefix in _prefixes():
+        path = prefix / "share" / pkg / "msg" / f"{short}.msg"
+        if path.is_file():
+            return _read(path)
+    # no installed .msg: rosbags' own definition of the type (the same fields, without comments)
+    from rosbags.typesys import Stores, TypesysError, get_typestore
+
+    full = f"{pkg}/msg/{short}"
+    try:
+        text, _ = get_typestore(Stores.ROS2_JAZZY).generate_msgdef(full, ros_version=2)
+    except (TypesysError, KeyError) as exc:
+        raise MessageError(f"no definition of message type {full!r} (not clm_msgs nor ROS 2 Jazzy)") from exc
+    return text.split(_DELIMITER)[0]
+
+
+def message_definition(msgtype: str, directory: str | os.PathLike[str] | None = None) -> str:
+    """The definition text rosbag2 Jazzy embeds in a bag for ``msgtype`` (encoding ``ros2msg``).
+
+    The type's ``.msg`` file verbatim (comments included), then each
+    dependency once, depth first in sorted order, after a line of 80 ``=``
+    and ``MSG: pkg/Name`` (rosbag2's ``LocalMessageDefinitionSource``).
+    Definitions outside clm_msgs come from ``<prefix>/share/<pkg>/msg`` when
+    installed, else from rosbags' Jazzy store (same fields, no comments).
+
+    Parameters
+    ----------
+    msgtype : str
+        ``pkg/msg/Name``, e.g. ``'clm_msgs/msg/WheelLoads'``.
+    directory : path-like, optional
+        clm_msgs package directory (default :func:`interface_dir`).
+
+    Returns
+    -------
+    str
+        The full definition text.
+
+    Raises
+    ------
+    MessageError
+        A definition cannot be found.
+    """
+    clm_dir = (Path(directory) if directory is not None else interface_dir()).resolve()
+    seen: set[str] = set()
+
+    def append(name: str, depth: int) -> str:
+        if depth <= 0:
+            raise MessageError(f"{msgtype}: definitions nest too deep (recursive type?)")
+        text = _own_text(name, clm_dir)
+        pkg = name.split("/")[0]
+        deps = set()
+        for m in _MSG_FIELD_TYPE.finditer(text):
+            t = m.group(1)
+            if t not in _PRIMITIVES:
+                deps.add(t if "/" in t else f"{pkg}/{t}")
+        out = text
+        for dep in sorted(deps):
+            if dep not in seen:
+                seen.add(dep)
+                out += "\n" + _DELIMITER + "MSG: " + dep + "\n" + append(dep, depth - 1)
+        return out
+
+    return append(msgtype, 50)
+
+
+# ============================================================================ domain data
+
+
+def frame_from_msg(msg: Any) -> WheelFrame:
+    """``clm_msgs/WheelLoads`` (rclpy or rosbags) -> the online model's frame.
+
+    Parameters
+    ----------
+    msg : WheelLoads
+        Any flavour with ``header`` and ``wheels[].id/position/force/speed``.
+
+    Returns
+    -------
+    clm_core.online.WheelFrame
+        Stamp [s] (float, from the integer-nanosecond stamp), ids, positions
+        [m], forces [N] (positive downwards), speeds [m/s].
+    """
+    from clm_core.online import WheelFrame
+
+    wheels = list(msg.wheels)
+    return WheelFrame.of(
+        stamp_ns(msg.header) / NS,
+        [w.id for w in wheels],
+        [w.position for w in wheels],
+        [w.force for w in wheels],
+        [w.speed for w in wheels],
+    )
+
+
+def sleeper_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
+    """Array fields of a ``clm_msgs/SleeperResponse`` for a response.
+
+    Returns
+    -------
+    dict
+        ``sleeper_index`` (int64, global), ``position`` [m], ``soil_force`` [N],
+        ``rail_deflection``, ``sleeper_displacement``, ``area_displacement`` [m]
+        (float64; positive downwards), one entry per sleeper of the window.
+    """
+    s = resp.sleepers
+    return {
+        "sleeper_index": np.asarray(s.sleeper_index, dtype=np.int64),
+        "position": np.asarray(s.sleeper_x, dtype=np.float64),
+        "soil_force": np.asarray(s.soil_force, dtype=np.float64),
+        "rail_deflection": np.asarray(s.rail_deflection, dtype=np.float64),
+        "sleeper_displacement": np.asarray(s.sleeper_displacement, dtype=np.float64),
+        "area_displacement": np.asarray(s.area_displacement, dtype=np.float64),
+    }
+
+
+def wheel_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
+    """Array fields of a ``clm_msgs/WheelRailResponse`` for a response.
+
+    Returns
+    -------
+    dict
+        ``wheel_id`` (uint32), ``position`` [m], ``rail_deflection`` [m],
+        ``rail_velocity`` [m/s] (positive downwards), in the input frame's order.
+    """
+    return {
+        "wheel_id": np.asarray(resp.wheel_ids, dtype=np.uint32),
+        "position": np.asarray(resp.wheel_positions, dtype=np.float64),
+        "rail_deflection": np.asarray(resp.wheel_deflection, dtype=np.float64),
+        "rail_velocity": np.asarray(resp.wheel_velocity, dtype=np.float64),
+    }
+
+
+def _rb_header(ts: Typestore, t_ns: int, frame_id: str) -> Any:
+    sec, nanosec = ns_to_stamp(t_ns)
+    T = ts.types
+    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+
+def wheel_loads_msg(
+    ts: Typestore,
+    t_ns: int,
+    ids: ArrayLike,
+    positions: ArrayLike,
+    forces: ArrayLike,
+    speeds: ArrayLike | None = None,
+    frame_id: str = "track",
+) -> Any:
+    """A ``clm_msgs/WheelLoads`` rosbags message.
+
+    Parameters
+    ----------
+    ts : Typestore
+        A store with the clm_msgs types (:func:`typestore`).
+    t_ns : int
+        Stamp [ns].
+    ids, positions, forces, speeds : array_like, shape (n,)
+        Wheel ids, positions [m], forces [N] (positive downwards), speeds
+        [m/s] (default NaN: unknown).
+    frame_id : str
+        Track line the positions refer to.
+    """
+    i = np.asarray(ids).ravel()
+    p = np.asarray(positions, dtype=np.float64).ravel()
+    f = np.asarray(forces, dtype=np.float64).ravel()
+    v = np.full(i.size, np.nan) if speeds is None else np.asarray(speeds, dtype=np.float64).ravel()
+    WheelLoad = ts.types["clm_msgs/msg/WheelLoad"]
+    return ts.types[WHEEL_LOADS](
+        header=_rb_header(ts, t_ns, frame_id),
+        wheels=[
+            WheelLoad(id=int(a), position=float(b), force=float(c), speed=float(d))
+            for a, b, c, d in zip(i.tolist(), p.tolist(), f.tolist(), v.tolist())
+        ],
+    )
+
+
+def response_msgs(ts: Typestore, resp: ResponseFrame, t_ns: int, frame_id: str = "track") -> tuple[Any, Any]:
+    """``(SleeperResponse, WheelRailResponse)`` rosbags messages of a response, stamped ``t_ns`` [ns]."""
+    return (
+        ts.types[SLEEPER_RESPONSE](header=_rb_header(ts, t_ns, frame_id), **sleeper_fields(resp)),
+        ts.types[WHEEL_RAIL_RESPONSE](header=_rb_header(ts, t_ns, frame_id), **wheel_fields(resp)),
+    )
+
+
+# ============================================================================ CDR codec
+#
+# XCDR1 (plain CDR): a 4-byte encapsulation header (0x00 0x01 = little endian,
+# 0x00 0x00 = big endian; two option bytes), then the fields, each aligned to
+# its size relative to the end of the encapsulation header (offset 4 of the
+# buffer). A string is a uint32 length counting a final NUL, then the bytes; a
+# sequence is a uint32 count, then the elements (aligned once the first is).
+
+
+class WheelLoadsData(NamedTuple):
+    """A decoded ``clm_msgs/WheelLoads``: header and one array entry per wheel."""
+
+    stamp_ns: int
+    """``header.stamp`` [ns]."""
+    frame_id: str
+    """``header.frame_id``."""
+    ids: NDArray[np.uint32]
+    """Wheel ids."""
+    positions: NDArray[np.float64]
+    """Contact positions along the line [m]."""
+    forces: NDArray[np.float64]
+    """Vertical forces [N], positive downwards."""
+    speeds: NDArray[np.float64]
+    """Speeds along the track [m/s] (NaN: unknown)."""
+
+
+class SleeperResponseData(NamedTuple):
+    """A decoded ``clm_msgs/SleeperResponse`` (fields as in the message; SI, positive downwards)."""
+
+    stamp_ns: int
+    frame_id: str
+    sleeper_index: NDArray[np.int64]
+    position: NDArray[np.float64]
+    soil_force: NDArray[np.float64]
+    rail_deflection: NDArray[np.float64]
+    sleeper_displacement: NDArray[np.float64]
+    area_displacement: NDArray[np.float64]
+
+
+class WheelRailResponseData(NamedTuple):
+    """A decoded ``clm_msgs/WheelRailResponse`` (fields as in the message; SI, positive downwards)."""
+
+    stamp_ns: int
+    frame_id: str
+    wheel_id: NDArray[np.uint32]
+    position: NDArray[np.float64]
+    rail_deflection: NDArray[np.float64]
+    rail_velocity: NDArray[np.float64]
+
+
+_ENCAPSULATION = {1: "<", 0: ">"}  # second byte of the representation id (first: 0)
+_LE_HEADER = b"\x00\x01\x00\x00"
+_HEAD = {o: struct.Struct(o + "iII") for o in "<>"}  # stamp.sec, stamp.nanosec, frame_id length (at offset 4)
+_U32 = {o: struct.Struct(o + "I") for o in "<>"}
+_HEAD_LE = struct.Struct("<4siII")
+_F8, _I8, _U4 = np.dtype("<f8"), np.dtype("<i8"), np.dtype("<u4")
+_DT = {"f8": _F8, "i8": _I8, "u4": _U4}
+_SLEEPER_SEQ = (("sleeper_index", "i8"),) + tuple(
+    (f, "f8") for f in ("position", "soil_force", "rail_deflection", "sleeper_displacement", "area_displacement")
+)
+_WHEEL_RAIL_SEQ = (("wheel_id", "u4"),) + tuple((f, "f8") for f in ("position", "rail_deflection", "rail_velocity"))
+# one WheelLoad in a 32-byte slot: id at 0 (element 8-aligned) or at 4 (element at 4 mod 8; first element only)
+_WHEEL = {
+    o: np.dtype({"names": ["id", "id4", "position", "force", "speed"], "formats": [o + "u4", o + "u4"] + [o + "f8"] * 3,
+                 "offsets": [0, 4, 8, 16, 24], "itemsize": 32})
+    for o in "<>"
+}
+
+
+def _buffer(data: Any, what: str) -> tuple[memoryview, str]:
+    try:
+        mv = memoryview(data)
+        if mv.format != "B" or mv.ndim != 1:
+            mv = mv.cast("B")
+    except TypeError:
+        raise MessageError(f"{what}: expected bytes-like serialized data, got {type(data).__name__}") from None
+    if len(mv) < 16:
+        raise MessageError(f"{what}: truncated: {len(mv)} bytes, a CDR header and stamp need at least 16")
+    order = _ENCAPSULATION.get(mv[1]) if mv[0] == 0 else None
+    if order is None:
+        raise MessageError(f"{what}: encapsulation {bytes(mv[0:4]).hex()} is not plain CDR (00 01 or 00 00)")
+    return mv, order
+
+
+def _decode_header(mv: memoryview, order: str, what: str) -> tuple[int, str, int]:
+    sec, nanosec, slen = _HEAD[order].unpack_from(mv, 4)
+    if nanosec >= NS:
+        raise MessageError(f"{what}: header.stamp.nanosec = {nanosec}: must be in [0, 1e9) (builtin_interfaces/Time)")
+    end = 16 + slen
+    if end > len(mv):
+        raise MessageError(f"{what}: truncated: frame_id of {slen} bytes at offset 16, buffer of {len(mv)} bytes")
+    if slen == 0:
+        return sec * NS + nanosec, "", end
+    if mv[end - 1] != 0:
+        raise MessageError(f"{what}: header.frame_id ({slen} bytes) is not NUL-terminated")
+    try:
+        return sec * NS + nanosec, str(mv[16 : end - 1], "utf-8"), end
+    except UnicodeDecodeError as exc:
+        raise MessageError(f"{what}: header.frame_id is not UTF-8 ({exc.reason} at byte {exc.start})") from None
+
+
+def _count(mv: memoryview, order: str, pos: int, what: str, name: str, size: int) -> tuple[int, int, int]:
+    """(count, first element offset, end offset) of a sequence whose count is at ``pos`` (unaligned)."""
+    pos += -pos & 3
+    if pos + 4 > len(mv):
+        raise MessageError(f"{what}: truncated: no length of {name} at offset {pos} (buffer of {len(mv)} bytes)")
+    (n,) = _U32[order].unpack_from(mv, pos)
+    start = pos + 4
+    if n and size == 8:
+        start += (4 - start) & 7
+    end = start + n * size
+    if end > len(mv):
+        raise MessageError(
+            f"{what}: {name} claims {n} elements ({n * size} bytes from offset {start}) but the buffer has "
+            f"{max(len(mv) - start, 0)} bytes left: truncated or malformed"
+        )
+    return n, start, end
+
+
+def _decode_arrays(data: Any, fields: tuple[tuple[str, str], ...], what: str) -> tuple[Any, ...]:
+    mv, order = _buffer(data, what)
+    t_ns, frame_id, pos = _decode_header(mv, order, what)
+    out: list[Any] = [t_ns, frame_id]
+    for name, code in fields:
+        size = int(code[1])
+        n, start, pos = _count(mv, order, pos, what, name, size)
+        out.append(np.frombuffer(mv, order + code, n, start).astype(code))
+    return tuple(out)
+
+
+def decode_wheel_loads(data: Any) -> WheelLoadsData:
+    """Decode a serialized ``clm_msgs/WheelLoads`` into arrays.
+
+    Parameters
+    ----------
+    data : bytes-like
+        CDR bytes as on the wire, in a bag or from a raw subscription;
+        trailing bytes after the last element are ignored.
+
+    Returns
+    -------
+    WheelLoadsData
+        ``stamp_ns`` [ns], ``frame_id``, ``ids`` (uint32), ``positions`` [m],
+        ``forces`` [N], ``speeds`` [m/s] (float64, new arrays).
+
+    Raises
+    ------
+    MessageError
+        Truncated or malformed bytes.
+    """
+    what = "WheelLoads"
+    mv, order = _buffer(data, what)
+    t_ns, frame_id, pos = _decode_header(mv, order, what)
+    pos += -pos & 3
+    if pos + 4 > len(mv):
+        raise MessageError(f"{what}: truncated: no length of wheels at offset {pos} (buffer of {len(mv)} bytes)")
+    (n,) = _U32[order].unpack_from(mv, pos)
+    start = pos + 4
+    shifted = (start - 4) & 7  # 4: the first element starts at 4 mod 8 (no padding before its position)
+    base = start - shifted
+    if base + 32 * n > len(mv):
+        raise MessageError(
+            f"{what}: wheels claims {n} elements (up to {32 * n} bytes from offset {start}) but the buffer has "
+            f"{len(mv) - start} bytes left: truncated or malformed"
+        )
+    rec = np.frombuffer(mv, _WHEEL[order], n, base)
+    ids = rec["id"].astype(np.uint32)
+    if n and shifted:
+        ids[0] = rec["id4"][0]
+    return WheelLoadsData(
+        t_ns, frame_id, ids, rec["position"].astype(np.float64), rec["force"].astype(np.float64),
+        rec["speed"].astype(np.float64),
+    )
+
+
+def decode_sleeper_response(data: Any) -> SleeperResponseData:
+    """Decode a serialized ``clm_msgs/SleeperResponse`` (arrays may differ in length, as sent).
+
+    Raises
+    ------
+    MessageError
+        Truncated or malformed bytes.
+    """
+    return SleeperResponseData(*_decode_arrays(data, _SLEEPER_SEQ, "SleeperResponse"))
+
+
+def decode_wheel_rail_response(data: Any) -> WheelRailResponseData:
+    """Decode a serialized ``clm_msgs/WheelRailResponse`` (arrays may differ in length, as sent).
+
+    Raises
+    ------
+    MessageError
+        Truncated or malformed bytes.
+    """
+    return WheelRailResponseData(*_decode_arrays(data, _WHEEL_RAIL_SEQ, "WheelRailResponse"))
+
+
+def _header_bytes(t_ns: int, frame_id: str, what: str) -> tuple[int, int, bytes]:
+    sec, nanosec = divmod(t_ns, NS)
+    if not INT32_MIN <= sec <= INT32_MAX:
+        raise MessageError(f"{what}: stamp {t_ns} ns: {sec} s does not fit the int32 sec of builtin_interfaces/Time")
+    return sec, nanosec, frame_id.encode("utf-8")
+
+
+def _as(values: ArrayLike, code: str, what: str, name: str) -> NDArray[Any]:
+    a = np.asarray(values)
+    dt = _DT[code]
+    if a.dtype == dt and a.ndim == 1:
+        return a
+    a = a.ravel()
+    if code[0] in "iu" and a.dtype != dt:
+        info = np.iinfo(dt)
+        if a.size and (a.dtype.kind not in "iu" or a.min() < info.min or a.max() > info.max):
+            raise MessageError(f"{what}.{name}: values must be integers in the range of {dt.name}")
+    return np.ascontiguousarray(a, dtype=dt)
+
+
+def _encode_arrays(t_ns: int, frame_id: str, arrays: list[ArrayLike], fields: tuple[tuple[str, str], ...],
+                   what: str) -> bytes:
+    sec, nanosec, fb = _header_bytes(t_ns, frame_id, what)
+    cols = [_as(a, code, what, name) for a, (name, code) in zip(arrays, fields)]
+    n = cols[0].size
+    for c in cols:
+        if c.size != n:
+            raise MessageError(f"{what}: arrays of different lengths {[c.size for c in cols]}: one entry per element")
+    pos = 17 + len(fb)
+    layout = []
+    for c in cols:
+        pos += -pos & 3
+        start = pos + 4
+        if n and c.itemsize == 8:
+            start += (4 - start) & 7
+        layout.append((pos, start, start + c.nbytes))
+        pos = start + c.nbytes
+    buf = bytearray(pos)
+    _HEAD_LE.pack_into(buf, 0, _LE_HEADER, sec, nanosec, len(fb) + 1)
+    buf[16 : 16 + len(fb)] = fb
+    pack = _U32["<"].pack_into
+    for (cpos, start, end), c in zip(layout, cols):
+        pack(buf, cpos, n)
+        buf[start:end] = c.tobytes()
+    return bytes(buf)
+
+
+def encode_sleeper_response(
+    stamp: int,
+    frame_id: str,
+    sleeper_index: ArrayLike,
+    position: ArrayLike,
+    soil_force: ArrayLike,
+    rail_deflection: ArrayLike,
+    sleeper_displacement: ArrayLike,
+    area_displacement: ArrayLike,
+) -> bytes:
+    """Serialize a ``clm_msgs/SleeperResponse`` (little-endian CDR) from arrays.
+
+    Parameters
+    ----------
+    stamp : int
+        ``header.stamp`` [ns].
+    frame_id : str
+        ``header.frame_id`` (UTF-8).
+    sleeper_index : array_like of int, shape (n,)
+        Global sleeper indices (int64).
+    position, soil_force, rail_deflection, sleeper_displacement, area_displacement : array_like, shape (n,)
+        Position [m], soil force [N], displacements [m] (float64; positive downwards).
+
+    Returns
+    -------
+    bytes
+        What rosbags' ``serialize_cdr`` gives for the same message.
+
+    Raises
+    ------
+    MessageError
+        Arrays of different lengths, non-integer indices, a stamp outside int32 seconds.
+    """
+    arrays = [sleeper_index, position, soil_force, rail_deflection, sleeper_displacement, area_displacement]
+    return _encode_arrays(stamp, frame_id, arrays, _SLEEPER_SEQ, "SleeperResponse")
+
+
+def encode_wheel_rail_response(
+    stamp: int, frame_id: str, wheel_id: ArrayLike, position: ArrayLike, rail_deflection: ArrayLike,
+    rail_velocity: ArrayLike,
+) -> bytes:
+    """Serialize a ``clm_msgs/WheelRailResponse`` (little-endian CDR) from arrays.
+
+    Parameters
+    ----------
+    stamp : int
+        ``header.stamp`` [ns].
+    frame_id : str
+        ``header.frame_id``.
+    wheel_id : array_like of int, shape (n,)
+        Wheel ids (uint32).
+    position, rail_deflection, rail_velocity : array_like, shape (n,)
+        Position [m], rail deflection [m], rail velocity [m/s] under each wheel (positive downwards).
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    MessageError
+        Arrays of different lengths, ids outside uint32, a stamp outside int32 seconds.
+    """
+    arrays = [wheel_id, position, rail_deflection, rail_velocity]
+    return _encode_arrays(stamp, frame_id, arrays, _WHEEL_RAIL_SEQ, "WheelRailResponse")
+
+
+def encode_wheel_loads(
+    stamp: int, frame_id: str, ids: ArrayLike, positions: ArrayLike, forces: ArrayLike,
+    speeds: ArrayLike | None = None,
+) -> bytes:
+    """Serialize a ``clm_msgs/WheelLoads`` (little-endian CDR) from arrays.
+
+    Parameters
+    ----------
+    stamp : int
+        ``header.stamp`` [ns].
+    frame_id : str
+        ``header.frame_id``.
+    ids : array_like of int, shape (n,)
+        Wheel ids (uint32).
+    positions, forces, speeds : array_like, shape (n,)
+        Positions [m], forces [N] (positive downwards), speeds [m/s] (default NaN).
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    MessageError
+        Arrays of different lengths, ids outside uint32, a stamp outside int32 seconds.
+    """
+    what = "WheelLoads"
+    sec, nanosec, fb = _header_bytes(stamp, frame_id, what)
+    i = _as(ids, "u4", what, "ids")
+    n = i.size
+    cols = [_as(positions, "f8", what, "positions"), _as(forces, "f8", what, "forces"),
+            _as(np.full(n, np.nan) if speeds is None else speeds, "f8", what, "speeds")]
+    if any(c.size != n for c in cols):
+        raise MessageError(f"{what}: arrays of different lengths {[n] + [c.size for c in cols]}: one entry per wheel")
+    cpos = 16 + len(fb) + 1
+    cpos += -cpos & 3
+    start = cpos + 4
+    shifted = (start - 4) & 7
+    base = start - shifted
+    buf = bytearray(base + 32 * n if n else start)
+    if n:
+        rec = np.frombuffer(buf, _WHEEL["<"], n, base)
+        rec["position"], rec["force"], rec["speed"] = cols
+        if shifted:  # the first id sits after the count, in the padding of its slot
+            rec["id"][1:] = i[1:]
+            rec["id4"][0] = i[0]
+        else:
+            rec["id"] = i
+    _HEAD_LE.pack_into(buf, 0, _LE_HEADER, sec, nanosec, len(fb) + 1)
+    buf[16 : 16 + len(fb)] = fb
+    _U32["<"].pack_into(buf, cpos, n)
+    return bytes(buf)
