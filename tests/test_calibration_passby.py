@@ -16,7 +16,6 @@ import pytest
 
 from clm_core.calibration import CalibrationError, calibrate
 from clm_core.params import load_model
-
 from clm_core.synthetic import write_passby_bag
 
 

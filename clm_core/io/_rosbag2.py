@@ -143,7 +143,8 @@ def _lines(obj: Any, indent: int) -> list[str]:
                 out.append(f"{pad}{k}: {_empty(v)}")
         return out
     for item in obj:
-        sub = _lines(item, indent + 2) if isinstance(item, (Mapping, list)) and item else [" " * (indent + 2) + _empty(item)]
+        nested = isinstance(item, (Mapping, list)) and item
+        sub = _lines(item, indent + 2) if nested else [" " * (indent + 2) + _empty(item)]
         out.append(f"{pad}- {sub[0][indent + 2 :]}")
         out += sub[1:]
     return out

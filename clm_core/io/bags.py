@@ -235,7 +235,7 @@ class BagWriter:
         if writer is not None:
             try:
                 writer.abort()
-            except Exception:  # noqa: S110 - the directory is removed anyway
+            except Exception:  # the directory is removed anyway
                 pass
         shutil.rmtree(self._tmp, ignore_errors=True)
 
@@ -257,7 +257,7 @@ class TopicInfo(NamedTuple):
 
     name: str
     msgtype: str
-    count: int
+    message_count: int
     """Messages the bag's metadata lists [-]."""
     qos: tuple[Qos, ...]
     """Offered QoS profiles recorded for the topic."""
@@ -376,8 +376,8 @@ class BagReader:
         for c in self._reader.connections:
             old = self.topics.get(c.topic)
             qos = tuple(getattr(c.ext, "offered_qos_profiles", ()))
-            self.topics[c.topic] = TopicInfo(c.topic, c.msgtype, c.msgcount + (old.count if old else 0), qos)
-        self.message_count = sum(t.count for t in self.topics.values())
+            self.topics[c.topic] = TopicInfo(c.topic, c.msgtype, c.msgcount + (old.message_count if old else 0), qos)
+        self.message_count = sum(t.message_count for t in self.topics.values())
         try:
             if self.message_count == 0:
                 have = ", ".join(sorted(self.topics)) or "no topics"
@@ -405,7 +405,7 @@ class BagReader:
         if reader is not None:
             try:
                 reader.close()
-            except Exception:  # noqa: S110 - closing a damaged file must not mask the real error
+            except Exception:  # closing a damaged file must not mask the real error
                 pass
 
     def __enter__(self) -> BagReader:
@@ -432,7 +432,7 @@ class BagReader:
             raise BagError(f"bag {str(self.path)!r}: no topic {topic}; topics in the bag: {have}")
         if info.msgtype != msgtype:
             raise BagError(f"bag {str(self.path)!r}: topic {topic} carries {info.msgtype}, expected {msgtype}")
-        if info.count == 0:
+        if info.message_count == 0:
             raise BagError(f"bag {str(self.path)!r}: topic {topic} has no messages")
         return info
 
@@ -472,8 +472,8 @@ class BagReader:
             for c in getattr(s, "connections", []):
                 file_counts[c.topic] += int(c.msgcount)
         for t, info in self.topics.items():
-            if file_counts.get(t, 0) != info.count:
-                line = (f"{t}: metadata.yaml lists {info.count} messages, the {self.storage} file's index "
+            if file_counts.get(t, 0) != info.message_count:
+                line = (f"{t}: metadata.yaml lists {info.message_count} messages, the {self.storage} file's index "
                         f"{file_counts.get(t, 0)}")
                 self._damage(line)
 
@@ -494,7 +494,7 @@ class BagReader:
         if unknown:
             raise BagError(f"bag {str(self.path)!r}: no topic {', '.join(unknown)}; has {sorted(self.topics)}")
         self.report.read = Counter()
-        self.report.expected = {t: self.topics[t].count for t in want}
+        self.report.expected = {t: self.topics[t].message_count for t in want}
         conns = [c for c in self._open_reader().connections if c.topic in want]
         for storage in self._storages():
             yield from self._storage_messages(storage, conns)
@@ -521,7 +521,7 @@ class BagReader:
             gens = [self._chunk(storage, i, ch, sconn, msgsrc) for i, ch in enumerate(chunks)
                     if any(ch.channel_count.get(cid, 0) for cid in sconn)]
             for t_ns, _i, _k, conn, data in heapq.merge(*gens):
-                if conn is not None:
+                if conn is not None and data is not None:
                     self.report.read[conn.topic] += 1
                     yield BagMessage(conn.topic, conn.msgtype, t_ns, bytes(data))
             return

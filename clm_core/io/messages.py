@@ -504,11 +504,12 @@ _HEAD = {o: struct.Struct(o + "iII") for o in "<>"}  # stamp.sec, stamp.nanosec,
 _U32 = {o: struct.Struct(o + "I") for o in "<>"}
 _HEAD_LE = struct.Struct("<4siII")
 _F8, _I8, _U4 = np.dtype("<f8"), np.dtype("<i8"), np.dtype("<u4")
-_DT = {"f8": _F8, "i8": _I8, "u4": _U4}
-_SLEEPER_SEQ = (("sleeper_index", "i8"),) + tuple(
-    (f, "f8") for f in ("position", "soil_force", "rail_deflection", "sleeper_displacement", "area_displacement")
+_DT: dict[str, np.dtype[Any]] = {"f8": _F8, "i8": _I8, "u4": _U4}
+_SLEEPER_SEQ = (
+    ("sleeper_index", "i8"), ("position", "f8"), ("soil_force", "f8"), ("rail_deflection", "f8"),
+    ("sleeper_displacement", "f8"), ("area_displacement", "f8"),
 )
-_WHEEL_RAIL_SEQ = (("wheel_id", "u4"),) + tuple((f, "f8") for f in ("position", "rail_deflection", "rail_velocity"))
+_WHEEL_RAIL_SEQ = (("wheel_id", "u4"), ("position", "f8"), ("rail_deflection", "f8"), ("rail_velocity", "f8"))
 # one WheelLoad in a 32-byte slot: id at 0 (element 8-aligned) or at 4 (element at 4 mod 8; first element only)
 _WHEEL = {
     o: np.dtype({"names": ["id", "id4", "position", "force", "speed"], "formats": [o + "u4", o + "u4"] + [o + "f8"] * 3,

@@ -11,25 +11,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("clm_ros.history_bag", reason="clm_ros not installed")
-
-from clm_ros.replay import open_reader
-
 from clm_core.cli import main as clm
+from clm_core.io.bags import BagReader
 
 
 def _soil_forces(bag, topic="/sleeper_response"):  # type: ignore[no-untyped-def]
-    reader = open_reader(bag)
-    try:
+    with BagReader(bag) as reader:
         out = {}
-        conns = [c for c in reader.connections if c.topic == topic]
-        for conn, _, raw in reader.messages(connections=conns):
-            m = reader.deserialize(raw, conn.msgtype)
+        for bm in reader.messages([topic]):
+            m = reader.deserialize(bm.data, bm.msgtype)
             t = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
             out[t] = dict(zip(np.asarray(m.sleeper_index).tolist(), np.asarray(m.soil_force).tolist()))
         return out
-    finally:
-        reader.close()
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])

@@ -105,7 +105,7 @@ def replay_bag(
         with BagReader(in_bag, allow_partial=allow_partial) as reader:
             in_topic = reader.find(WHEEL_LOADS, topic)
             info = reader.topics[in_topic]
-            stats.expected = info.count
+            stats.expected = info.message_count
             with BagWriter(out_bag, storage) as writer:
                 c_in = writer.add_topic(in_topic, WHEEL_LOADS, qos=list(info.qos) or default_qos())
                 c_s = writer.add_topic(f"{out_prefix}/sleeper_response", SLEEPER_RESPONSE)

@@ -17,7 +17,7 @@ def register(sub: Any) -> None:
         description="Raw subscriptions (reliable, keep-all) written to a bag until Ctrl-C, --duration or --count.",
     )
     r.add_argument("topics", nargs="+", help="TOPIC or TOPIC:TYPE (type default: discovered on the graph)")
-    r.add_argument("--out", required=True, help="output bag directory (must not exist; it appears when recording stops)")
+    r.add_argument("--out", required=True, help="output bag directory (must not exist; appears when recording stops)")
     r.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])
     r.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     r.add_argument("--count", type=int, default=None, help="stop after this many messages on the first topic")
@@ -36,7 +36,7 @@ def register(sub: Any) -> None:
     p.add_argument("--max-in-flight", type=int, default=20,
                    help="--rate 0: messages published ahead of their answers (default 20)")
     p.add_argument("--allow-partial", action="store_true",
-                   help="play what is left of a damaged bag (missing messages or damaged chunks) instead of refusing it")
+                   help="play what is left of a damaged bag (missing messages, damaged chunks) instead of refusing it")
     p.set_defaults(func=run_play)
 
 
