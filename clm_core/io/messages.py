@@ -505,6 +505,7 @@ _U32 = {o: struct.Struct(o + "I") for o in "<>"}
 _HEAD_LE = struct.Struct("<4siII")
 _F8, _I8, _U4 = np.dtype("<f8"), np.dtype("<i8"), np.dtype("<u4")
 _DT: dict[str, np.dtype[Any]] = {"f8": _F8, "i8": _I8, "u4": _U4}
+_BOUNDS = {"i8": (-(2**63), 2**63 - 1), "u4": (0, 2**32 - 1)}
 _SLEEPER_SEQ = (
     ("sleeper_index", "i8"), ("position", "f8"), ("soil_force", "f8"), ("rail_deflection", "f8"),
     ("sleeper_displacement", "f8"), ("area_displacement", "f8"),
@@ -659,11 +660,28 @@ def _as(values: ArrayLike, code: str, what: str, name: str) -> NDArray[Any]:
     if a.dtype == dt and a.ndim == 1:
         return a
     a = a.ravel()
-    if code[0] in "iu" and a.dtype != dt:
-        info = np.iinfo(dt)
-        if a.size and (a.dtype.kind not in "iu" or a.min() < info.min or a.max() > info.max):
+    if code[0] in "iu" and a.dtype != dt and a.size:
+        lo, hi = _BOUNDS[code]
+        if a.dtype.kind not in "iu" or int(a.min()) < lo or int(a.max()) > hi:
             raise MessageError(f"{what}.{name}: values must be integers in the range of {dt.name}")
     return np.ascontiguousarray(a, dtype=dt)
+
+
+@functools.lru_cache(maxsize=1024)
+def _separators(slen: int, n: int, sizes: tuple[int, ...]) -> tuple[bytes, ...]:
+    """Bytes between the frame_id text and each array, and between arrays: NUL, padding, count, padding."""
+    pos = 16 + slen - 1  # end of the frame_id text (its NUL comes next)
+    out = []
+    lead = b"\x00"
+    for size in sizes:
+        end = pos + len(lead)
+        pad = -end & 3
+        start = end + pad + 4
+        pad8 = (4 - start) & 7 if n and size == 8 else 0
+        out.append(lead + bytes(pad) + _U32["<"].pack(n) + bytes(pad8))
+        pos = start + pad8 + n * size
+        lead = b""
+    return tuple(out)
 
 
 def _encode_arrays(t_ns: int, frame_id: str, arrays: list[ArrayLike], fields: tuple[tuple[str, str], ...],
@@ -674,23 +692,11 @@ def _encode_arrays(t_ns: int, frame_id: str, arrays: list[ArrayLike], fields: tu
     for c in cols:
         if c.size != n:
             raise MessageError(f"{what}: arrays of different lengths {[c.size for c in cols]}: one entry per element")
-    pos = 17 + len(fb)
-    layout = []
-    for c in cols:
-        pos += -pos & 3
-        start = pos + 4
-        if n and c.itemsize == 8:
-            start += (4 - start) & 7
-        layout.append((pos, start, start + c.nbytes))
-        pos = start + c.nbytes
-    buf = bytearray(pos)
-    _HEAD_LE.pack_into(buf, 0, _LE_HEADER, sec, nanosec, len(fb) + 1)
-    buf[16 : 16 + len(fb)] = fb
-    pack = _U32["<"].pack_into
-    for (cpos, start, end), c in zip(layout, cols):
-        pack(buf, cpos, n)
-        buf[start:end] = c.tobytes()
-    return bytes(buf)
+    seps = _separators(len(fb) + 1, n, tuple(c.itemsize for c in cols))
+    parts: list[Any] = [_HEAD_LE.pack(_LE_HEADER, sec, nanosec, len(fb) + 1), fb]
+    for sep, c in zip(seps, cols):
+        parts += (sep, c)
+    return b"".join(parts)
 
 
 def encode_sleeper_response(
