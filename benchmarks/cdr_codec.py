@@ -29,7 +29,7 @@ CLM_ROS_SRC = REPO / "ros2_ws" / "src" / "clm_ros"
 if str(CLM_ROS_SRC) not in sys.path:
     sys.path.insert(0, str(CLM_ROS_SRC))
 
-from clm_core.io import messages as M  # noqa: E402
+from clm_core.io import messages as msgs  # noqa: E402
 from clm_core.io.timebase import NS  # noqa: E402
 
 
@@ -45,14 +45,14 @@ def main() -> int:
     args = ap.parse_args()
     rng = np.random.default_rng(1)
     t_ns = 1_795_311_577 * NS + 12_847_207
-    wl = M.encode_wheel_loads(t_ns, "track", np.arange(4, dtype=np.uint32), 30 + rng.random(4), 8e4 + rng.random(4),
+    wl = msgs.encode_wheel_loads(t_ns, "track", np.arange(4, dtype=np.uint32), 30 + rng.random(4), 8e4 + rng.random(4),
                               np.full(4, 83.33))
     s_arrays = [np.arange(100, 161, dtype=np.int64), *(rng.random(61) for _ in range(5))]
     w_arrays = [np.arange(4, dtype=np.uint32), *(rng.random(4) for _ in range(3))]
     cases = {
-        "decode WheelLoads (4 wheels)": lambda: M.decode_wheel_loads(wl),
-        "encode SleeperResponse (61 sleepers)": lambda: M.encode_sleeper_response(t_ns, "track", *s_arrays),
-        "encode WheelRailResponse (4 wheels)": lambda: M.encode_wheel_rail_response(t_ns, "track", *w_arrays),
+        "decode WheelLoads (4 wheels)": lambda: msgs.decode_wheel_loads(wl),
+        "encode SleeperResponse (61 sleepers)": lambda: msgs.encode_sleeper_response(t_ns, "track", *s_arrays),
+        "encode WheelRailResponse (4 wheels)": lambda: msgs.encode_wheel_rail_response(t_ns, "track", *w_arrays),
     }
     print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; "
           f"{args.repeat} x {args.number} calls per case")
@@ -74,14 +74,14 @@ def main() -> int:
         print(f"(rclpy comparison skipped: {exc})")
         return 0
     model = OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=61)
-    resp = model.process(M.frame_from_msg(deserialize_message(wl, WheelLoads)))
+    resp = model.process(msgs.frame_from_msg(deserialize_message(wl, WheelLoads)))
     rclpy_cases = {
-        "rclpy: deserialize + frame_from_msg": lambda: M.frame_from_msg(deserialize_message(wl, WheelLoads)),
+        "rclpy: deserialize + frame_from_msg": lambda: msgs.frame_from_msg(deserialize_message(wl, WheelLoads)),
         "rclpy: rclpy_responses + serialize x2": lambda: [serialize_message(m) for m in rclpy_responses(resp, t_ns)],
         "codec: frame + both responses": lambda: (
-            M.decode_wheel_loads(wl),
-            M.encode_sleeper_response(t_ns, "track", *M.sleeper_fields(resp).values()),
-            M.encode_wheel_rail_response(t_ns, "track", *M.wheel_fields(resp).values()),
+            msgs.decode_wheel_loads(wl),
+            msgs.encode_sleeper_response(t_ns, "track", *msgs.sleeper_fields(resp).values()),
+            msgs.encode_wheel_rail_response(t_ns, "track", *msgs.wheel_fields(resp).values()),
         ),
     }
     for name, fn in rclpy_cases.items():

@@ -18,35 +18,36 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clm_core.io import messages as M
+from clm_core.io import messages as msgs
 from clm_core.io.errors import MessageError
 from clm_core.io.timebase import NS
 
-TS = M.typestore()
+TS = msgs.typestore()
 T = TS.types
 
 # ------------------------------------------------------------------------------------------- definitions
 
 
 def _defs(root: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted((*root.glob("msg/*.msg"), *root.glob("srv/*.srv")))}
+    files = sorted((*root.glob("msg/*.msg"), *root.glob("srv/*.srv")))
+    return {str(p.relative_to(root)): p.read_bytes() for p in files}
 
 
 def test_packaged_definitions_are_the_source_tree_ones() -> None:
     """The copy in clm_core/io/interfaces is byte for byte ros2_ws/src/clm_msgs (the one source of truth)."""
-    src = _defs(M.source_interface_dir())
+    src = _defs(msgs.source_interface_dir())
     assert src, "no definitions in the source tree"
-    assert _defs(M.packaged_interface_dir()) == src
+    assert _defs(msgs.packaged_interface_dir()) == src
 
 
 def test_interface_dir_order(tmp_path: Path) -> None:
     share = tmp_path / "share" / "clm_msgs" / "msg"
     share.mkdir(parents=True)
     (share / "WheelLoad.msg").write_text("uint32 id\n")
-    assert M.interface_dir([tmp_path]) == tmp_path / "share" / "clm_msgs"
-    assert M.interface_dir([tmp_path / "nothing"]) in (M.source_interface_dir(), M.packaged_interface_dir())
-    types = M.clm_types(M.packaged_interface_dir())
-    assert types == M.clm_types(M.source_interface_dir())
+    assert msgs.interface_dir([tmp_path]) == tmp_path / "share" / "clm_msgs"
+    assert msgs.interface_dir([tmp_path / "nothing"]) in (msgs.source_interface_dir(), msgs.packaged_interface_dir())
+    types = msgs.clm_types(msgs.packaged_interface_dir())
+    assert types == msgs.clm_types(msgs.source_interface_dir())
     assert {"clm_msgs/msg/WheelLoads", "clm_msgs/srv/Calibrate_Request", "clm_msgs/srv/Calibrate_Event"} <= set(types)
 
 
@@ -54,15 +55,15 @@ def test_a_broken_definition_is_named(tmp_path: Path) -> None:
     (tmp_path / "msg").mkdir()
     (tmp_path / "msg" / "Bad.msg").write_text("float64[ x\n")
     with pytest.raises(MessageError, match=r"Bad.msg as clm_msgs/msg/Bad"):
-        M.clm_types(tmp_path)
+        msgs.clm_types(tmp_path)
     with pytest.raises(MessageError, match=r"no msg/\*.msg files"):
-        M.clm_types(tmp_path / "msg")
+        msgs.clm_types(tmp_path / "msg")
 
 
 def _text(pkg: str, name: str) -> str:
     if pkg == "clm_msgs":
-        return (M.interface_dir() / "msg" / f"{name}.msg").read_text()
-    return M._own_text(f"{pkg}/{name}", M.interface_dir().resolve())
+        return (msgs.interface_dir() / "msg" / f"{name}.msg").read_text()
+    return msgs._own_text(f"{pkg}/{name}", msgs.interface_dir().resolve())
 
 
 def test_message_definition_is_rosbag2s_full_text_with_comments() -> None:
@@ -74,7 +75,7 @@ def test_message_definition_is_rosbag2s_full_text_with_comments() -> None:
         + sep + "MSG: std_msgs/Header\n" + _text("std_msgs", "Header")
         + sep + "MSG: builtin_interfaces/Time\n" + _text("builtin_interfaces", "Time")
     )
-    got = M.message_definition(M.WHEEL_LOADS)
+    got = msgs.message_definition(msgs.WHEEL_LOADS)
     assert got == want
     # units and the sign convention travel with the data
     assert "positive DOWNWARDS" in got and "[N]" in got and "[m/s]" in got
@@ -82,15 +83,15 @@ def test_message_definition_is_rosbag2s_full_text_with_comments() -> None:
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.EMPTY)
-    store.register(get_types_from_msg(got, M.WHEEL_LOADS))
-    assert store.hash_rihs01(M.WHEEL_LOADS) == TS.hash_rihs01(M.WHEEL_LOADS)
-    for name in (M.SLEEPER_RESPONSE, M.WHEEL_RAIL_RESPONSE, "geometry_msgs/msg/WrenchStamped"):
-        text = M.message_definition(name)
+    store.register(get_types_from_msg(got, msgs.WHEEL_LOADS))
+    assert store.hash_rihs01(msgs.WHEEL_LOADS) == TS.hash_rihs01(msgs.WHEEL_LOADS)
+    for name in (msgs.SLEEPER_RESPONSE, msgs.WHEEL_RAIL_RESPONSE, "geometry_msgs/msg/WrenchStamped"):
+        text = msgs.message_definition(name)
         s2 = get_typestore(Stores.EMPTY)
         s2.register(get_types_from_msg(text, name))
         assert s2.hash_rihs01(name) == TS.hash_rihs01(name), name
     with pytest.raises(MessageError, match="no definition of message type"):
-        M.message_definition("nopkg/msg/Nothing")
+        msgs.message_definition("nopkg/msg/Nothing")
 
 
 # ------------------------------------------------------------------------------------------- domain data
@@ -102,22 +103,22 @@ def test_domain_conversions_from_a_real_response() -> None:
 
     model = OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=21)
     t_ns = 1_700_000_000 * NS + 123_456_789
-    msg = M.wheel_loads_msg(TS, t_ns, [7, 9], [6.0, 3.5], [8e4, 9e4], [25.0, 25.0], frame_id="line_A")
-    frame = M.frame_from_msg(msg)
+    msg = msgs.wheel_loads_msg(TS, t_ns, [7, 9], [6.0, 3.5], [8e4, 9e4], [25.0, 25.0], frame_id="line_A")
+    frame = msgs.frame_from_msg(msg)
     assert isinstance(frame, WheelFrame)
     assert frame.stamp == t_ns / NS and list(frame.ids) == [7, 9] and list(frame.forces) == [8e4, 9e4]
     resp = model.process(frame)
-    s, w = M.response_msgs(TS, resp, t_ns, "line_A")
-    sf, wf = M.sleeper_fields(resp), M.wheel_fields(resp)
+    s, w = msgs.response_msgs(TS, resp, t_ns, "line_A")
+    sf, wf = msgs.sleeper_fields(resp), msgs.wheel_fields(resp)
     assert sf["sleeper_index"].dtype == np.int64 and wf["wheel_id"].dtype == np.uint32
     assert np.max(sf["soil_force"]) > 0  # compression positive, loads pressing down
     # the codec writes the same bytes as rosbags for these messages
-    assert bytes(TS.serialize_cdr(s, M.SLEEPER_RESPONSE)) == M.encode_sleeper_response(t_ns, "line_A", *sf.values())
-    assert bytes(TS.serialize_cdr(w, M.WHEEL_RAIL_RESPONSE)) == M.encode_wheel_rail_response(
+    assert bytes(TS.serialize_cdr(s, msgs.SLEEPER_RESPONSE)) == msgs.encode_sleeper_response(t_ns, "line_A", *sf.values())
+    assert bytes(TS.serialize_cdr(w, msgs.WHEEL_RAIL_RESPONSE)) == msgs.encode_wheel_rail_response(
         t_ns, "line_A", *wf.values()
     )
-    raw = bytes(TS.serialize_cdr(msg, M.WHEEL_LOADS))
-    d = M.decode_wheel_loads(raw)
+    raw = bytes(TS.serialize_cdr(msg, msgs.WHEEL_LOADS))
+    d = msgs.decode_wheel_loads(raw)
     assert (d.stamp_ns, d.frame_id, d.ids.tolist(), d.positions.tolist()) == (t_ns, "line_A", [7, 9], [6.0, 3.5])
 
 
@@ -153,21 +154,21 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
 @given(wheel_loads())
 def test_wheel_loads_codec_equals_rosbags(case: tuple[Any, ...]) -> None:
     t_ns, frame_id, ids, pos, force, speed = case
-    msg = T[M.WHEEL_LOADS](
+    msg = T[msgs.WHEEL_LOADS](
         header=_rb_header(t_ns, frame_id),
         wheels=[T["clm_msgs/msg/WheelLoad"](id=int(i), position=p, force=f, speed=v)
                 for i, p, f, v in zip(ids.tolist(), pos.tolist(), force.tolist(), speed.tolist())],
     )
-    ours = M.encode_wheel_loads(t_ns, frame_id, ids, pos, force, speed)
-    assert ours == bytes(TS.serialize_cdr(msg, M.WHEEL_LOADS))
-    d = M.decode_wheel_loads(ours)
+    ours = msgs.encode_wheel_loads(t_ns, frame_id, ids, pos, force, speed)
+    assert ours == bytes(TS.serialize_cdr(msg, msgs.WHEEL_LOADS))
+    d = msgs.decode_wheel_loads(ours)
     assert (d.stamp_ns, d.frame_id) == (t_ns, frame_id)
     assert _same(d.ids, ids) and _same(d.positions, pos) and _same(d.forces, force) and _same(d.speeds, speed)
     # big-endian CDR decodes to the same content
-    big = M.decode_wheel_loads(bytes(TS.serialize_cdr(msg, M.WHEEL_LOADS, little_endian=False)))
+    big = msgs.decode_wheel_loads(bytes(TS.serialize_cdr(msg, msgs.WHEEL_LOADS, little_endian=False)))
     assert big.stamp_ns == t_ns and _same(big.ids, ids) and _same(big.speeds, speed)
     # trailing padding (as rclpy leaves it) is ignored
-    assert _same(M.decode_wheel_loads(ours + b"\xaa" * 7).forces, force)
+    assert _same(msgs.decode_wheel_loads(ours + b"\xaa" * 7).forces, force)
 
 
 @st.composite
@@ -181,15 +182,15 @@ def sleeper_responses(draw: Any) -> tuple[Any, ...]:
 @given(sleeper_responses())
 def test_sleeper_response_codec_equals_rosbags(case: tuple[Any, ...]) -> None:
     t_ns, frame_id, *arrays = case
-    names = [f for f, _ in M._SLEEPER_SEQ]
-    msg = T[M.SLEEPER_RESPONSE](header=_rb_header(t_ns, frame_id), **dict(zip(names, arrays)))
-    ours = M.encode_sleeper_response(t_ns, frame_id, *arrays)
-    assert ours == bytes(TS.serialize_cdr(msg, M.SLEEPER_RESPONSE))
-    d = M.decode_sleeper_response(ours)
+    names = [f for f, _ in msgs._SLEEPER_SEQ]
+    msg = T[msgs.SLEEPER_RESPONSE](header=_rb_header(t_ns, frame_id), **dict(zip(names, arrays)))
+    ours = msgs.encode_sleeper_response(t_ns, frame_id, *arrays)
+    assert ours == bytes(TS.serialize_cdr(msg, msgs.SLEEPER_RESPONSE))
+    d = msgs.decode_sleeper_response(ours)
     assert (d.stamp_ns, d.frame_id) == (t_ns, frame_id)
     for name, a in zip(names, arrays):
         assert _same(getattr(d, name), a), name
-    big = M.decode_sleeper_response(bytes(TS.serialize_cdr(msg, M.SLEEPER_RESPONSE, little_endian=False)))
+    big = msgs.decode_sleeper_response(bytes(TS.serialize_cdr(msg, msgs.SLEEPER_RESPONSE, little_endian=False)))
     assert _same(big.sleeper_index, arrays[0]) and _same(big.area_displacement, arrays[-1])
 
 
@@ -198,27 +199,27 @@ def test_sleeper_response_codec_equals_rosbags(case: tuple[Any, ...]) -> None:
 def test_wheel_rail_response_codec_equals_rosbags(t_ns: int, frame_id: str, n: int, data: Any) -> None:
     ids = np.array(data.draw(st.lists(st.integers(0, 2**32 - 1), min_size=n, max_size=n)), dtype=np.uint32)
     arrays = [ids, *[_f64(data.draw, n) for _ in range(3)]]
-    names = [f for f, _ in M._WHEEL_RAIL_SEQ]
-    msg = T[M.WHEEL_RAIL_RESPONSE](header=_rb_header(t_ns, frame_id), **dict(zip(names, arrays)))
-    ours = M.encode_wheel_rail_response(t_ns, frame_id, *arrays)
-    assert ours == bytes(TS.serialize_cdr(msg, M.WHEEL_RAIL_RESPONSE))
-    d = M.decode_wheel_rail_response(ours)
+    names = [f for f, _ in msgs._WHEEL_RAIL_SEQ]
+    msg = T[msgs.WHEEL_RAIL_RESPONSE](header=_rb_header(t_ns, frame_id), **dict(zip(names, arrays)))
+    ours = msgs.encode_wheel_rail_response(t_ns, frame_id, *arrays)
+    assert ours == bytes(TS.serialize_cdr(msg, msgs.WHEEL_RAIL_RESPONSE))
+    d = msgs.decode_wheel_rail_response(ours)
     assert all(_same(getattr(d, k), a) for k, a in zip(names, arrays))
 
 
 def test_decoders_accept_unequal_lengths_as_sent() -> None:
-    msg = T[M.WHEEL_RAIL_RESPONSE](header=_rb_header(5, "x"), wheel_id=np.array([1, 2, 3], dtype=np.uint32),
+    msg = T[msgs.WHEEL_RAIL_RESPONSE](header=_rb_header(5, "x"), wheel_id=np.array([1, 2, 3], dtype=np.uint32),
                                    position=np.array([1.0]), rail_deflection=np.array([]), rail_velocity=np.zeros(2))
-    d = M.decode_wheel_rail_response(bytes(TS.serialize_cdr(msg, M.WHEEL_RAIL_RESPONSE)))
+    d = msgs.decode_wheel_rail_response(bytes(TS.serialize_cdr(msg, msgs.WHEEL_RAIL_RESPONSE)))
     assert [a.size for a in d[2:]] == [3, 1, 0, 2]
 
 
 SAMPLES = {
-    "WheelLoads": (M.decode_wheel_loads, M.encode_wheel_loads(3 * NS + 5, "trå", [1, 2, 3], [1.0, 2, 3], [4.0, 5, 6])),
-    "SleeperResponse": (M.decode_sleeper_response,
-                        M.encode_sleeper_response(7, "t", np.arange(5), *[np.ones(5)] * 5)),
-    "WheelRailResponse": (M.decode_wheel_rail_response,
-                          M.encode_wheel_rail_response(7, "", [4, 5], [1.0, 2.0], [0.0, 0.0], [1.0, 1.0])),
+    "WheelLoads": (msgs.decode_wheel_loads, msgs.encode_wheel_loads(3 * NS + 5, "trå", [1, 2, 3], [1.0, 2, 3], [4.0, 5, 6])),
+    "SleeperResponse": (msgs.decode_sleeper_response,
+                        msgs.encode_sleeper_response(7, "t", np.arange(5), *[np.ones(5)] * 5)),
+    "WheelRailResponse": (msgs.decode_wheel_rail_response,
+                          msgs.encode_wheel_rail_response(7, "", [4, 5], [1.0, 2.0], [0.0, 0.0], [1.0, 1.0])),
 }
 
 
@@ -293,14 +294,14 @@ def test_mutated_messages_give_a_message_error_or_a_message(name: str, data: Any
 
 def test_encoders_refuse_what_the_message_cannot_hold() -> None:
     with pytest.raises(MessageError, match="different lengths"):
-        M.encode_wheel_loads(0, "", [1, 2], [1.0], [1.0, 2.0])
+        msgs.encode_wheel_loads(0, "", [1, 2], [1.0], [1.0, 2.0])
     with pytest.raises(MessageError, match="different lengths"):
-        M.encode_sleeper_response(0, "", [1, 2], *[np.ones(2)] * 4, np.ones(3))
+        msgs.encode_sleeper_response(0, "", [1, 2], *[np.ones(2)] * 4, np.ones(3))
     for ids in ([-1], [2**32], [1.5]):
         with pytest.raises(MessageError, match="range of uint32"):
-            M.encode_wheel_rail_response(0, "", ids, [1.0], [1.0], [1.0])
+            msgs.encode_wheel_rail_response(0, "", ids, [1.0], [1.0], [1.0])
     with pytest.raises(MessageError, match="int32 sec"):
-        M.encode_wheel_loads(2**31 * NS, "", [], [], [])
-    assert M.decode_wheel_loads(M.encode_wheel_loads(-1, "", [], [], [])).stamp_ns == -1
-    speeds = M.decode_wheel_loads(M.encode_wheel_loads(0, "", [3], [1.0], [2.0])).speeds
+        msgs.encode_wheel_loads(2**31 * NS, "", [], [], [])
+    assert msgs.decode_wheel_loads(msgs.encode_wheel_loads(-1, "", [], [], [])).stamp_ns == -1
+    speeds = msgs.decode_wheel_loads(msgs.encode_wheel_loads(0, "", [3], [1.0], [2.0])).speeds
     assert math.isnan(speeds[0])  # unknown speed
