@@ -113,7 +113,8 @@ def test_domain_conversions_from_a_real_response() -> None:
     assert sf["sleeper_index"].dtype == np.int64 and wf["wheel_id"].dtype == np.uint32
     assert np.max(sf["soil_force"]) > 0  # compression positive, loads pressing down
     # the codec writes the same bytes as rosbags for these messages
-    assert bytes(TS.serialize_cdr(s, msgs.SLEEPER_RESPONSE)) == msgs.encode_sleeper_response(t_ns, "line_A", *sf.values())
+    ours = msgs.encode_sleeper_response(t_ns, "line_A", *sf.values())
+    assert bytes(TS.serialize_cdr(s, msgs.SLEEPER_RESPONSE)) == ours
     assert bytes(TS.serialize_cdr(w, msgs.WHEEL_RAIL_RESPONSE)) == msgs.encode_wheel_rail_response(
         t_ns, "line_A", *wf.values()
     )
@@ -215,7 +216,8 @@ def test_decoders_accept_unequal_lengths_as_sent() -> None:
 
 
 SAMPLES = {
-    "WheelLoads": (msgs.decode_wheel_loads, msgs.encode_wheel_loads(3 * NS + 5, "trå", [1, 2, 3], [1.0, 2, 3], [4.0, 5, 6])),
+    "WheelLoads": (msgs.decode_wheel_loads,
+                   msgs.encode_wheel_loads(3 * NS + 5, "trå", [1, 2, 3], [1.0, 2, 3], [4.0, 5, 6])),
     "SleeperResponse": (msgs.decode_sleeper_response,
                         msgs.encode_sleeper_response(7, "t", np.arange(5), *[np.ones(5)] * 5)),
     "WheelRailResponse": (msgs.decode_wheel_rail_response,
