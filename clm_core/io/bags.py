@@ -191,7 +191,7 @@ class BagWriter:
             ``pkg/msg/Name`` known to the type store.
         qos : sequence of rosbags.interfaces.Qos, optional
             Offered QoS profiles of the topic's publishers (default
-            :func:`default_qos`: one reliable publisher).
+            :func:`default_qos`: one reliable publisher; empty: none offered).
         """
         from clm_core.io.messages import message_definition
 
@@ -201,9 +201,8 @@ class BagWriter:
         if msgtype not in self._defs:
             self._defs[msgtype] = (message_definition(msgtype), ts.hash_rihs01(msgtype))
         msgdef, rihs01 = self._defs[msgtype]
-        conn = self._live().add_connection(
-            topic, msgtype, msgdef=msgdef, rihs01=rihs01, offered_qos_profiles=list(qos or default_qos())
-        )
+        offered = list(default_qos() if qos is None else qos)
+        conn = self._live().add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01, offered_qos_profiles=offered)
         self._topic[conn.id] = topic
         return conn
 

@@ -128,7 +128,7 @@ class BagRecorder:
         conn = self._conns.get(topic)
         if conn is None:
             qos = offered_qos(self._node, topic)
-            conn = self._conns[topic] = self.writer.add_topic(topic, self.topics[topic], qos=qos or None)
+            conn = self._conns[topic] = self.writer.add_topic(topic, self.topics[topic], qos=qos)
         return conn
 
     def _callback(self, topic: str) -> Any:
