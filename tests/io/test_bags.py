@@ -117,7 +117,8 @@ def test_storage_files_carry_the_jazzy_metadata(tmp_path: Path, storage: str) ->
         try:
             assert con.execute("SELECT ros_distro FROM schema").fetchone() == ("jazzy",)
             (meta,) = con.execute("SELECT metadata FROM metadata").fetchone()
-            name, qtext, digest = con.execute("SELECT name, offered_qos_profiles, type_description_hash FROM topics").fetchone()
+            sql = "SELECT name, offered_qos_profiles, type_description_hash FROM topics"
+            name, qtext, digest = con.execute(sql).fetchone()
             (text,) = con.execute("SELECT encoded_message_definition FROM message_definitions").fetchone()
         finally:
             con.close()
@@ -161,7 +162,7 @@ def test_what_a_bag_is(tmp_path: Path, storage: str) -> None:
         assert sum(1 for _ in r.messages()) == 20
         assert r.report.notes == [f"no metadata.yaml: counts checked against bag{suffix}'s own index"]
     (bag / f"other{suffix}").write_bytes(file.read_bytes())
-    with pytest.raises(BagError, match=rf"not a rosbag2 bag \(no metadata.yaml, and 2 .mcap/.db3 files\)"):
+    with pytest.raises(BagError, match=r"not a rosbag2 bag \(no metadata.yaml, and 2 .mcap/.db3 files\)"):
         BagReader(bag)
     with pytest.raises(BagError, match="not found: the path does not exist"):
         BagReader(tmp_path / "nothing")
