@@ -247,3 +247,20 @@ def test_calibrate_empty_bag(impact_bag: Path, tmp_path: Path) -> None:
     shutil.copy(impact_bag / "channels.yaml", tmp_path / "empty" / "channels.yaml")
     p = _clm("calibrate", str(tmp_path / "empty"), "--method", "impact", "--out", str(tmp_path / "o"))
     assert p.returncode == 2 and "is empty: it holds no messages" in p.stderr, p.stderr
+
+
+def test_calibration_names_a_loads_topic_of_the_wrong_type(tmp_path: Path) -> None:
+    from clm_core.calibration import read_bag
+    from clm_core.calibration.channels import parse_channel_map
+
+    with BagWriter(tmp_path / "b") as w:
+        T = w.typestore.types
+        c = w.add_topic("/clm/wheel_loads", "std_msgs/msg/String")
+        w.write_msg(c, T0, T["std_msgs/msg/String"](data="x"))
+        c = w.add_topic("/clm/sleeper_response", msgs.SLEEPER_RESPONSE)
+        w.write(c, T0, msgs.encode_sleeper_response(T0, "", [0], [0.0], [1.0], [1e-3], [1e-3], [1e-4]))
+    cmap = parse_channel_map({"loads": {"topic": "/clm/wheel_loads"}, "channels": [
+        {"topic": "/clm/sleeper_response", "sleeper": 0, "location": "rail", "quantity": "displacement",
+         "units": "m", "field": "rail_deflection"}]})
+    with pytest.raises(BagError, match="loads topic /clm/wheel_loads carries std_msgs/msg/String, expected clm_msgs"):
+        read_bag(tmp_path / "b", cmap, need_force=False, need_loads=True)

@@ -63,7 +63,9 @@ def test_a_broken_definition_is_named(tmp_path: Path) -> None:
 def _text(pkg: str, name: str) -> str:
     if pkg == "clm_msgs":
         return (msgs.interface_dir() / "msg" / f"{name}.msg").read_text()
-    return msgs._own_text(f"{pkg}/{name}", msgs.interface_dir().resolve())
+    from clm_core.io._definitions import _own_text
+
+    return _own_text(f"{pkg}/{name}", msgs.interface_dir().resolve())
 
 
 def test_message_definition_is_rosbag2s_full_text_with_comments() -> None:
