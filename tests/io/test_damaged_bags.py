@@ -12,6 +12,7 @@ play`` over DDS is in tests/ros/test_bag_tools.py.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sqlite3
 import subprocess
@@ -151,8 +152,14 @@ def test_sqlite3_rows_missing(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------------------- the commands
 
 
+CLM_ROS_SRC = Path(__file__).resolve().parents[2] / "ros2_ws" / "src" / "clm_ros"
+
+
 def _clm(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "clm_core.cli", *args], capture_output=True, text=True, timeout=600)
+    env = dict(os.environ)  # `clm replay` lives in clm_ros: importable from the source tree too
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(CLM_ROS_SRC), env.get("PYTHONPATH", "")) if p)
+    return subprocess.run([sys.executable, "-m", "clm_core.cli", *args], capture_output=True, text=True, timeout=600,
+                          env=env)
 
 
 def _leftovers(d: Path) -> list[str]:
