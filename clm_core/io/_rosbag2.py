@@ -276,4 +276,4 @@ class Rosbag2Writer(Writer):
         storage = cast("_McapStorage | _Sqlite3Storage", self.storage)
         storage.metadata_text = emit_yaml(meta)
         super().close()
-        self.metapath.write_text(emit_yaml({"rosbag2_bagfile_information": meta}) + "\n", encoding="utf-8")
+        self.metapath.write_text(emit_yaml({"rosbag2_bagfile_information": meta}), encoding="utf-8")

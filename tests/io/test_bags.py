@@ -55,6 +55,7 @@ def _indent(text: str, n: int) -> str:
 
 
 def test_metadata_is_what_ros2_bag_record_of_jazzy_writes(tmp_path: Path) -> None:
+    """rosbag2's key order, yaml-cpp's block style, no final newline (``fout << node``)."""
     bag = write_wheel_bag(tmp_path / "wheels", n=3)
     h = msgs.typestore().hash_rihs01(msgs.WHEEL_LOADS)
     want = f"""rosbag2_bagfile_information:
@@ -86,8 +87,7 @@ def test_metadata_is_what_ros2_bag_record_of_jazzy_writes(tmp_path: Path) -> Non
         nanoseconds: 2000000
       message_count: 3
   custom_data: ~
-  ros_distro: jazzy
-"""
+  ros_distro: jazzy"""
     assert (bag / "metadata.yaml").read_text() == want
     assert qos_yaml(default_qos()) == QOS_TEXT
     assert qos_yaml([]) == "[]"
