@@ -16,6 +16,7 @@ pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/set
 from clm_core.cli import main as clm
 from clm_core.io.bags import BagReader, BagWriter
 from clm_core.io.messages import wheel_loads_msg
+from clm_core.io.timebase import NS, stamp_ns
 
 NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
 N = 300
@@ -25,7 +26,7 @@ def _write_wheel_bag(path, storage: str) -> None:  # type: ignore[no-untyped-def
     with BagWriter(path, storage) as w:
         c = w.add_topic("/wheel_loads", "clm_msgs/msg/WheelLoads")
         for k in range(N):
-            t = 7 * 10**9 + k * 10**6
+            t = 7 * NS + k * 1_000_000
             w.write_msg(c, t, wheel_loads_msg(w.typestore, t, [3, 4], [30.0 + 0.03 * k, 27.0 + 0.03 * k],
                                               [80e3 + 10 * k, 85e3]))
 
@@ -35,7 +36,7 @@ def _responses(path, topic: str = "/sleeper_response") -> list[tuple[int, np.nda
         out = []
         for m in reader.messages([topic]):
             msg = reader.deserialize(m.data, m.msgtype)
-            out.append((msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, np.asarray(msg.soil_force)))
+            out.append((stamp_ns(msg.header), np.asarray(msg.soil_force)))
         return out
 
 

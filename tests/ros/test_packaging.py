@@ -568,6 +568,7 @@ def test_demo_bag_is_small_complete_and_replays_bit_for_bit(tmp_path: Path) -> N
     from clm_ros.replay import replay_bag
 
     from clm_core.io.bags import BagReader
+    from clm_core.io.timebase import stamp_ns
     from clm_core.online import OnlineTrackModel
     from clm_core.params import load_model
 
@@ -587,7 +588,7 @@ def test_demo_bag_is_small_complete_and_replays_bit_for_bit(tmp_path: Path) -> N
         with BagReader(path) as reader:
             for bm in reader.messages(["/sleeper_response", "/wheel_rail_response"]):
                 m = reader.deserialize(bm.data, bm.msgtype)
-                out[(bm.topic, m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)] = m
+                out[(bm.topic, stamp_ns(m.header))] = m
         return out
 
     rec, rep = responses(DEMO_BAG), responses(tmp_path / "out")

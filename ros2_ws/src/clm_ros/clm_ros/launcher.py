@@ -227,6 +227,7 @@ def _run_demo(
 def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     """Read a demo bag back, plot it, and return figures (lags, peaks)."""
     from clm_core.io.bags import BagReader
+    from clm_core.io.timebase import stamp_ns
 
     wheel_t: list[int] = []
     wheel_F: list[np.ndarray] = []
@@ -243,11 +244,11 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
         for bm in reader.messages():
             m = reader.deserialize(bm.data, bm.msgtype)
             if bm.topic == "/wheel_loads":
-                wheel_t.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)
+                wheel_t.append(stamp_ns(m.header))
                 wheel_F.append(np.array([w.force for w in m.wheels]))
                 wheel_x.append(np.array([w.position for w in m.wheels]))
             elif bm.topic == "/sleeper_response":
-                st = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+                st = stamp_ns(m.header)
                 recv[st] = bm.log_ns
                 s_t.append(st)
                 s_idx.append(np.asarray(m.sleeper_index))
