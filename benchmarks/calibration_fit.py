@@ -24,7 +24,7 @@ from clm_core.calibration import calibrate, read_bag
 from clm_core.calibration.channels import find_channel_map, load_channel_map
 from clm_core.calibration.impact import fit_impact
 from clm_core.calibration.spectra import WindowSpec, transfer_functions
-from clm_core.calibration.synthetic import write_impact_bag
+from clm_core.synthetic import write_impact_bag
 
 SHIPPED = Path(__file__).resolve().parents[1] / "bags" / "calibration" / "impact_mevergnies"
 

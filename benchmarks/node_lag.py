@@ -75,7 +75,8 @@ if str(CLM_ROS_SRC) not in sys.path:
 
 from clm_ros.processes import hold_domain_id, ros_args, ros_env, stop_processes  # noqa: E402
 
-NS = 1_000_000_000
+from clm_core.io.timebase import NS  # noqa: E402
+
 TARGET_MEDIAN_S = 5e-3
 TARGET_P99_S = 20e-3
 TRACK = {"track": "mevergnies", "soil": "mevergnies", "model": "clm", "dt": 1e-4, "n_sleepers": 61,
@@ -348,9 +349,10 @@ def top_functions(path: Path, n: int = 15) -> list[dict[str, Any]]:
 def stage_times(n: int) -> dict[str, float]:
     """Median cost [us] of each step of the per-message path, in one process, no middleware."""
     from clm_msgs.msg import WheelLoads
-    from clm_ros.conversions import frame_from_msg, rclpy_responses, rclpy_wheel_loads
+    from clm_ros.conversions import rclpy_responses, rclpy_wheel_loads
     from rclpy.serialization import deserialize_message, serialize_message
 
+    from clm_core.io.messages import frame_from_msg
     from clm_core.online import OnlineTrackModel
     from clm_core.params import load_model
     from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run

@@ -49,14 +49,13 @@ if str(CLM_ROS_SRC) not in sys.path:
     sys.path.insert(0, str(CLM_ROS_SRC))
 
 import clm_ros.replay as replay_mod  # noqa: E402
-from clm_ros.conversions import frame_from_msg, rosbags_wheel_loads  # noqa: E402
-from clm_ros.msg_types import typestore  # noqa: E402
-from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
 
+from clm_core.io.bags import BagReader, BagWriter  # noqa: E402
+from clm_core.io.messages import WHEEL_LOADS, frame_from_msg, wheel_loads_msg  # noqa: E402
+from clm_core.io.timebase import NS  # noqa: E402
 from clm_core.online import OnlineTrackModel, Rejected  # noqa: E402
 from clm_core.params import load_model  # noqa: E402
 
-NS = 1_000_000_000
 SPEED = 83.33
 OFFSETS = np.array([0.0, 2.5, 12.5, 15.0])  # wheel positions behind the first one [m] (fits 61 sleepers)
 STATIC = 85e3
@@ -65,27 +64,26 @@ T0_NS = 1_700_000_000 * NS
 
 def write_wheel_bag(path: Path, seconds: float, rate: float, x0: float = 30.0) -> int:
     """A 4-wheel wheel-load bag (mcap) of ``seconds`` at ``rate``; returns the message count."""
-    ts = typestore()
     n = int(round(seconds * rate)) + 1
     period = int(round(NS / rate))
     rng = np.random.default_rng(1)
     phase = rng.uniform(0, 2 * np.pi, (3, OFFSETS.size))
     freq = np.array([3.0, 17.0, 41.0])  # body, bogie, wheelset-track [Hz]
     amp = np.array([0.03, 0.015, 0.005]) * STATIC
-    with Writer(path, version=8, storage_plugin=StoragePlugin.MCAP) as w:
-        conn = w.add_connection("/wheel_loads", "clm_msgs/msg/WheelLoads", typestore=ts)
+    with BagWriter(path, "mcap") as w:
+        conn = w.add_topic("/wheel_loads", WHEEL_LOADS)
         for k in range(n):
             t = k / rate
             x = x0 + SPEED * t - OFFSETS
             F = STATIC + (amp[:, None] * np.sin(2 * np.pi * freq[:, None] * t + phase)).sum(axis=0)
             t_ns = T0_NS + k * period
-            msg = rosbags_wheel_loads(ts, t_ns, range(OFFSETS.size), x, F, np.full(OFFSETS.size, SPEED))
-            w.write(conn, t_ns, ts.serialize_cdr(msg, "clm_msgs/msg/WheelLoads"))
+            w.write_msg(conn, t_ns, wheel_loads_msg(w.typestore, t_ns, range(OFFSETS.size), x, F,
+                                                    np.full(OFFSETS.size, SPEED)))
     return n
 
 
 class NullWriter:
-    """Drop-in for ``rosbags.rosbag2.Writer`` that stores nothing."""
+    """Drop-in for :class:`clm_core.io.bags.BagWriter` that stores nothing."""
 
     def __init__(self, *_a: Any, **_k: Any) -> None:
         self.bytes = 0
@@ -96,7 +94,7 @@ class NullWriter:
     def __exit__(self, *_a: Any) -> None:
         return None
 
-    def add_connection(self, *_a: Any, **_k: Any) -> object:
+    def add_topic(self, *_a: Any, **_k: Any) -> object:
         return object()
 
     def write(self, _conn: Any, _t: int, data: bytes) -> None:
@@ -110,15 +108,15 @@ def new_model(params: Any, dt: float, n_sleepers: int) -> OnlineTrackModel:
 def run_replay(in_bag: Path, out_dir: Path, params: Any, dt: float, n_sleepers: int, write: bool) -> dict[str, Any]:
     model = new_model(params, dt, n_sleepers)
     out = out_dir / f"out_{time.monotonic_ns()}"
-    orig = replay_mod.Writer
+    orig = replay_mod.BagWriter
     if not write:
-        replay_mod.Writer = NullWriter  # type: ignore[misc,assignment]
+        replay_mod.BagWriter = NullWriter  # type: ignore[misc,assignment]
     try:
         w0 = time.perf_counter()
         st = replay_mod.replay_bag(in_bag, out, model)
         wall = time.perf_counter() - w0
     finally:
-        replay_mod.Writer = orig  # type: ignore[misc]
+        replay_mod.BagWriter = orig  # type: ignore[misc]
     size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file()) if out.exists() else 0
     return {"rtf": st.real_time_factor, "sim_time_s": st.sim_time_s, "loop_wall_s": st.wall_time_s,
             "call_wall_s": wall, "read": st.read, "written": st.written, "rejected": sum(st.rejected.values()),
@@ -127,14 +125,13 @@ def run_replay(in_bag: Path, out_dir: Path, params: Any, dt: float, n_sleepers: 
 
 def run_model_only(in_bag: Path, params: Any, dt: float, n_sleepers: int) -> dict[str, Any]:
     model = new_model(params, dt, n_sleepers)
-    reader = replay_mod.open_reader(in_bag)
+    reader = BagReader(in_bag)
     sim_t = 0.0
     n = 0
     try:
-        conns = [c for c in reader.connections if c.msgtype == replay_mod.WHEEL_LOADS]
         w0 = time.perf_counter()
-        for conn, _t, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
+        for bm in reader.messages([reader.find(WHEEL_LOADS)]):
+            msg = reader.deserialize(bm.data, bm.msgtype)
             before = model.sim.t
             try:
                 resp = model.process(frame_from_msg(msg))

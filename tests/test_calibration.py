@@ -1,6 +1,6 @@
 """Calibration from bags (issue 6): recovery of known parameters, intervals, stability, models.
 
-Synthetic bags are written by :mod:`clm_core.calibration.synthetic` into
+Synthetic bags are written by :mod:`clm_core.synthetic` into
 ``tmp_path`` (time integration of the CLM chain / the track under a hammer
 pulse, anti-alias decimation, 30 dB white noise on every channel) and fitted
 by the frequency-domain models: two independent routes.
@@ -19,10 +19,10 @@ from clm_core.calibration.impact import fit_impact, measured_sums
 from clm_core.calibration.models import track_response
 from clm_core.calibration.signals import SamplingRules, common_grid
 from clm_core.calibration.spectra import WindowSpec, transfer_functions
-from clm_core.calibration.synthetic import add_noise, simulate_impact, write_bag, write_impact_bag, write_receptance_bag
 from clm_core.frequency import dynamic_solve
 from clm_core.params import SoilParams, load_model, load_soil
 from clm_core.soil.chain import chain_damping_min_eigenvalue, chain_frequency_response, chain_response, laplace
+from clm_core.synthetic import add_noise, simulate_impact, write_bag, write_impact_bag, write_receptance_bag
 from clm_core.track import assemble
 
 TRUTH = load_soil("mevergnies")

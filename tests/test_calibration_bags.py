@@ -19,9 +19,9 @@ import yaml
 from clm_core.calibration import BagError, CalibrationError, calibrate, read_bag
 from clm_core.calibration.channels import load_channel_map, parse_channel_map
 from clm_core.calibration.signals import Signal
-from clm_core.calibration.synthetic import SyntheticRecord, add_noise, simulate_impact, write_bag
 from clm_core.errors import InputError
 from clm_core.params import load_soil
+from clm_core.synthetic import SyntheticRecord, add_noise, simulate_impact, write_bag
 
 TOPIC = "/soil/area_p01"
 

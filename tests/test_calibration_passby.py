@@ -9,8 +9,6 @@ same engine at 0.5 ms from another starting point.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,13 +16,7 @@ import pytest
 
 from clm_core.calibration import CalibrationError, calibrate
 from clm_core.params import load_model
-
-CLM_ROS_SRC = Path(__file__).resolve().parents[1] / "ros2_ws" / "src" / "clm_ros"
-if importlib.util.find_spec("clm_ros") is None and CLM_ROS_SRC.is_dir():
-    sys.path.insert(0, str(CLM_ROS_SRC))
-pytest.importorskip("clm_ros.msg_types", reason="writing clm_msgs bags needs clm_ros")
-
-from clm_core.calibration.synthetic import write_passby_bag  # noqa: E402
+from clm_core.synthetic import write_passby_bag
 
 
 @pytest.fixture(scope="module")

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from clm_core.cli import main
-from clm_core.peaks import BlockPeaks, masked_max, peak_window
 from clm_core.io.history import load_history
+from clm_core.peaks import BlockPeaks, masked_max, peak_window
 
 D = 0.6  # sleeper spacing of the Mevergnies track [m]
 

@@ -16,9 +16,9 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from clm_core.frequency import dynamic_solve
+from clm_core.io.history import HistoryRecorder, TimeHistory
 from clm_core.newmark import NewmarkLinear, _initial_acceleration
 from clm_core.params import ModelParams, SleeperOverride, load_model
-from clm_core.io.history import HistoryRecorder, TimeHistory
 from clm_core.stepper import Block, TrackSimulator
 from clm_core.track import assemble
 

@@ -241,7 +241,8 @@ def test_run_vehicle_writes_outputs(tmp_path: Path, params: ModelParams) -> None
                 "contact_loss_events", "real_time_factor"):
         assert key in summary and on_disk[key] == pytest.approx(summary[key])
     assert summary["settings"]["n_overrides"] == 1
-    h = np.load(tmp_path / "vehicle_history.npz")
+    with np.load(tmp_path / "vehicle_history.npz") as z:
+        h = {k: z[k] for k in z.files}
     assert h["wheel_load"].shape == (1501, 4)
     head = (tmp_path / "wheels.csv").read_text().splitlines()[0]
     assert head.startswith("t_s,x0_m,P0_N,delta0_m")

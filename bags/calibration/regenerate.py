@@ -15,7 +15,7 @@ import argparse
 import shutil
 from pathlib import Path
 
-from clm_core.calibration.synthetic import write_impact_bag, write_receptance_bag
+from clm_core.synthetic import write_impact_bag, write_receptance_bag
 
 HERE = Path(__file__).resolve().parent
 

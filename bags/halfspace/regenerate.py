@@ -19,7 +19,7 @@ import shutil
 import time
 from pathlib import Path
 
-from clm_core.halfspace.impact_bag import write_reference_impact_bag
+from clm_core.synthetic.reference import write_reference_impact_bag
 
 HERE = Path(__file__).resolve().parent
 

@@ -17,7 +17,7 @@ Every fit states its frequency band and error norm, returns 95 % intervals
 not identify. Bags are read with rosbags (:mod:`clm_core.calibration.bagio`,
 channel maps :mod:`clm_core.calibration.channels`); outputs are written by
 :func:`write_outputs`; synthetic bags with known parameters come from
-:mod:`clm_core.calibration.synthetic`. Format and usage: docs/calibration.md.
+:mod:`clm_core.synthetic`. Format and usage: docs/calibration.md.
 """
 
 from __future__ import annotations

@@ -244,6 +244,7 @@ def calibrate(
     method: str,
     options: CalibrationOptions | Mapping[str, Any] | str | None = None,
     progress: Progress | None = None,
+    allow_partial: bool = False,
 ) -> CalibrationResult:
     """Fit model parameters to a recorded test.
 
@@ -260,6 +261,9 @@ def calibrate(
         See :class:`~clm_core.calibration.options.CalibrationOptions`.
     progress : callable (stage, fraction), optional
         Progress reports (fraction in [0, 1]).
+    allow_partial : bool
+        Fit what is left of a damaged bag (missing or damaged chunks are
+        listed in the warnings) instead of raising :class:`BagError`.
 
     Returns
     -------
@@ -292,10 +296,11 @@ def calibrate(
         raise BagError(f"bag {str(bag_path)!r} does not exist")
     cmap = _channel_map(bag_path, opts, method)
     contents = read_bag(
-        bag_path, cmap, opts.sampling, need_force=method != "passby", need_loads=method == "passby"
+        bag_path, cmap, opts.sampling, need_force=method != "passby", need_loads=method == "passby",
+        allow_partial=allow_partial,
     )
     rec = contents.recording
-    warnings: list[str] = []
+    warnings: list[str] = [f"partial bag: {d}" for d in contents.damage]
     notes = list(rec.notes)
     base = _base_params(opts)
     report("records checked", 0.15)

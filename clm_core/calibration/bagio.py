@@ -1,8 +1,10 @@
-"""Reading calibration records from rosbag2 bags (mcap or sqlite3) with rosbags.
+"""Reading calibration records from rosbag2 bags (mcap or sqlite3).
 
-The reader uses the message definitions stored in the bag (``AnyReader``
-with no type store), so the suite's own messages (``clm_msgs``) and plain
-standard messages are read alike, with no ROS installation.
+Bags are opened with the suite's one reader, :class:`clm_core.io.bags.BagReader`
+(what a bag is, count cross-checks, damaged chunks, ``allow_partial``); it
+uses the message definitions stored in the bag, so the suite's own messages
+(``clm_msgs``) and plain standard messages are read alike, with no ROS
+installation. This module turns the messages into calibration records.
 
 Values are taken from the field the channel map names, or from the default
 field of the message type (:data:`DEFAULT_FIELDS`). A field path may index
@@ -14,8 +16,9 @@ first one at the message's time. In ``clm_msgs/msg/SleeperResponse`` the
 array entry of the channel's sleeper (``sleeper_index``) is taken.
 
 Every failure becomes a :class:`~clm_core.calibration.errors.BagError` that
-names the bag or topic: missing, truncated or corrupt files, missing
-topics, messages without the field, and the checks of
+names the bag or topic: missing, truncated, corrupt or empty files, message
+counts that disagree with the metadata, missing topics, a wheel-loads topic
+of another type, messages without the field, and the checks of
 :mod:`clm_core.calibration.signals`.
 """
 
@@ -24,7 +27,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +37,9 @@ from numpy.typing import NDArray
 from clm_core.calibration.channels import ChannelMap, ChannelSpec
 from clm_core.calibration.errors import BagError, CalibrationError
 from clm_core.calibration.signals import Recording, SamplingRules, Signal, common_grid
+from clm_core.io.bags import BagReader
+from clm_core.io.messages import WHEEL_LOADS
+from clm_core.io.timebase import stamp_ns
 
 Array = NDArray[np.float64]
 
@@ -94,6 +100,8 @@ class BagContents:
         Wheel loads (pass-by).
     topics : mapping
         Every topic of the bag -> message type.
+    damage : tuple of str
+        With ``allow_partial``: what was missing or damaged (empty: complete).
     """
 
     path: str
@@ -101,6 +109,7 @@ class BagContents:
     recording: Recording
     loads: WheelLoadRecord | None
     topics: Mapping[str, str]
+    damage: tuple[str, ...] = field(default=())
 
 
 def _resolve(msg: Any, path: str, where: str) -> Any:
@@ -127,87 +136,41 @@ def _resolve(msg: Any, path: str, where: str) -> Any:
 
 def _stamp_ns(msg: Any) -> int | None:
     h = getattr(msg, "header", None)
-    st = getattr(h, "stamp", None)
-    if st is None:
+    if getattr(h, "stamp", None) is None:
         return None
-    return int(st.sec) * 1_000_000_000 + int(st.nanosec)
+    return stamp_ns(h)
 
 
 @contextmanager
-def open_bag(bag_path: str | Path) -> Iterator[Any]:
-    """Open a bag with rosbags' ``AnyReader``; turn every reader failure into a BagError.
+def open_bag(bag_path: str | Path, allow_partial: bool = False) -> Iterator[BagReader]:
+    """Open a bag with the suite's reader (:class:`clm_core.io.bags.BagReader`).
 
     Accepts a rosbag2 directory (``metadata.yaml`` + ``.mcap``/``.db3``), an
-    ``.mcap`` file, or a directory with a single ``.mcap`` and no metadata.
+    ``.mcap`` or ``.db3`` file, or a directory with a single one and no metadata.
 
     Raises
     ------
     BagError
-        Path missing; not a bag; truncated or corrupt file.
+        Path missing; not a bag; truncated, corrupt or empty file.
     """
-    from rosbags.highlevel import AnyReader
-
-    p = Path(bag_path)
-    if not p.exists():
-        raise BagError(f"bag {str(p)!r} does not exist")
-    target = p
-    if p.is_dir() and not (p / "metadata.yaml").exists():
-        mcaps = sorted(p.glob("*.mcap"))
-        if len(mcaps) == 1:
-            target = mcaps[0]
-        else:
-            raise BagError(
-                f"bag {str(p)!r}: not a rosbag2 directory (no metadata.yaml"
-                + (f", and {len(mcaps)} .mcap files" if mcaps else "")
-                + ")"
-            )
-    reader = AnyReader([target])
-    try:
-        reader.open()
-    except (BagError, CalibrationError):
-        raise
-    except Exception as exc:  # rosbags raises several types for damaged files
-        raise BagError(
-            f"bag {str(p)!r} cannot be opened: {exc} ({type(exc).__name__}); the file is truncated, "
-            "corrupt or not a rosbag2 bag (an interrupted recording can often be repaired with `mcap recover`)"
-        ) from None
+    reader = BagReader(bag_path, allow_partial=allow_partial)
     try:
         yield reader
     finally:
-        try:
-            reader.close()
-        except Exception:
-            pass
+        reader.close()
 
 
-def _messages(reader: Any, conns: list[Any], p: Path) -> Iterator[tuple[Any, int, Any]]:
-    """Deserialized messages; a failure inside rosbags (damaged chunk, bad CDR) becomes a BagError."""
-    it = reader.messages(connections=conns)
-    while True:
+def _messages(reader: BagReader, topics: set[str], p: Path) -> Iterator[tuple[str, str, int, Any]]:
+    """Deserialized messages; a message that does not decode becomes a BagError."""
+    for m in reader.messages(topics):
         try:
-            item = next(it)
-        except StopIteration:
-            return
+            msg = reader.deserialize(m.data, m.msgtype)
         except Exception as exc:
             raise BagError(
-                f"bag {str(p)!r}: reading failed: {exc} ({type(exc).__name__}); the file is truncated or corrupt"
+                f"bag {str(p)!r}: topic {m.topic}: a message at log time {m.log_ns} ns cannot be decoded as "
+                f"{m.msgtype}: {exc} ({type(exc).__name__})"
             ) from None
-        conn, log_ns, raw = item
-        try:
-            msg = reader.deserialize(raw, conn.msgtype)
-        except Exception as exc:
-            raise BagError(
-                f"bag {str(p)!r}: topic {conn.topic}: a message at log time {log_ns} ns cannot be decoded as "
-                f"{conn.msgtype}: {exc} ({type(exc).__name__})"
-            ) from None
-        yield conn, log_ns, msg
-
-
-def _storage(reader: Any, p: Path) -> str:
-    names = [str(x) for x in getattr(reader, "paths", [])] + [str(p)]
-    if any(n.endswith(".db3") for n in names) or any(Path(p).glob("*.db3")):
-        return "sqlite3"
-    return "mcap"
+        yield m.topic, m.msgtype, m.log_ns, msg
 
 
 def read_bag(
@@ -216,6 +179,7 @@ def read_bag(
     rules: SamplingRules | None = None,
     need_force: bool = True,
     need_loads: bool = False,
+    allow_partial: bool = False,
 ) -> BagContents:
     """Read the channels of a channel map from a bag and put them on one time grid.
 
@@ -231,6 +195,9 @@ def read_bag(
         The map must give a force channel (impact, receptance).
     need_loads : bool
         The map must give a wheel-loads topic (pass-by).
+    allow_partial : bool
+        Read what is left of a damaged bag (listed in ``BagContents.damage``)
+        instead of raising.
 
     Returns
     -------
@@ -239,8 +206,9 @@ def read_bag(
     Raises
     ------
     BagError
-        Unreadable bag, missing topics, messages without the field, records
-        failing the checks of :func:`clm_core.calibration.signals.check_signal`.
+        Unreadable, empty or damaged bag (unless ``allow_partial``), missing
+        topics, a loads topic that is not ``clm_msgs/msg/WheelLoads``,
+        messages without the field, records failing the checks of :func:`clm_core.calibration.signals.check_signal`.
     CalibrationError
         The map lacks the force or loads entry the method needs.
     """
@@ -251,7 +219,7 @@ def read_bag(
     if need_loads and not cmap.loads_topic:
         raise CalibrationError(f"channel map {cmap.source}: no 'loads' entry (the wheel-loads topic is needed)")
     specs: list[ChannelSpec] = ([cmap.force] if (need_force and cmap.force) else []) + list(cmap.channels)
-    with open_bag(p) as reader:
+    with open_bag(p, allow_partial) as reader:
         topics = {t: info.msgtype for t, info in reader.topics.items()}
         wanted = {s.topic for s in specs} | ({cmap.loads_topic} if need_loads and cmap.loads_topic else set())
         missing = sorted(wanted - set(topics))
@@ -261,24 +229,28 @@ def read_bag(
                 f"bag {str(p)!r}: topic(s) {', '.join(missing)} not in the bag (channel map {cmap.source}); "
                 f"topics in the bag: {avail}"
             )
+        if need_loads and cmap.loads_topic and topics[cmap.loads_topic] != WHEEL_LOADS:
+            raise BagError(
+                f"bag {str(p)!r}: loads topic {cmap.loads_topic} carries {topics[cmap.loads_topic]}, expected "
+                f"{WHEEL_LOADS} (channel map {cmap.source})"
+            )
         by_topic: dict[str, list[ChannelSpec]] = {}
         for s in specs:
             by_topic.setdefault(s.topic, []).append(s)
         stamps: dict[int, list[int]] = {id(s): [] for s in specs}
         values: dict[int, list[Any]] = {id(s): [] for s in specs}
         load_rows: list[tuple[int, list[tuple[int, float, float]]]] = []
-        conns = [c for c in reader.connections if c.topic in wanted]
         counts = dict.fromkeys(wanted, 0)
-        for conn, log_ns, msg in _messages(reader, conns, p):
-            counts[conn.topic] += 1
-            if need_loads and conn.topic == cmap.loads_topic:
-                load_rows.append(_wheel_row(msg, log_ns, conn.topic))
-                if conn.topic not in by_topic:
+        for topic, msgtype, log_ns, msg in _messages(reader, wanted, p):
+            counts[topic] += 1
+            if need_loads and topic == cmap.loads_topic:
+                load_rows.append(_wheel_row(msg, log_ns, topic))
+                if topic not in by_topic:
                     continue
             hdr = _stamp_ns(msg)
-            for s in by_topic.get(conn.topic, []):
-                where = f"topic {conn.topic} [{conn.msgtype}]"
-                path = s.field or DEFAULT_FIELDS.get(conn.msgtype)
+            for s in by_topic.get(topic, []):
+                where = f"topic {topic} [{msgtype}]"
+                path = s.field or DEFAULT_FIELDS.get(msgtype)
                 if path is None:
                     raise BagError(
                         f"{where}: no default field for this message type; give 'field' in the channel map "
@@ -299,7 +271,8 @@ def read_bag(
         for topic in sorted(wanted):
             if counts[topic] == 0:
                 raise BagError(f"bag {str(p)!r}: topic {topic} has no messages (channel map {cmap.source})")
-        storage = _storage(reader, p)
+        storage = reader.storage
+        damage = tuple(reader.report.damaged)
     origin = min(min(v) for v in stamps.values() if v) if any(stamps.values()) else 0
     if load_rows:
         origin = min(origin, min(r[0] for r in load_rows))
@@ -310,7 +283,7 @@ def read_bag(
     resp = [signals[id(s)] for s in cmap.channels]
     rec = common_grid(force_sig, resp, rules, t_origin_ns=origin)
     loads = _wheel_record(load_rows, rec.t_origin_ns, cmap.loads_topic or "") if need_loads else None
-    return BagContents(path=str(p), storage=storage, recording=rec, loads=loads, topics=topics)
+    return BagContents(path=str(p), storage=storage, recording=rec, loads=loads, topics=topics, damage=damage)
 
 
 def _signal(s: ChannelSpec, st: list[int], vals: list[Any], origin: int) -> Signal:

@@ -52,6 +52,9 @@ def register(sub: Any) -> None:
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(p)
+    p.add_argument("--allow-partial", action="store_true",
+                   help="fit what is left of a damaged bag (missing or damaged chunks are reported as warnings) "
+                   "instead of refusing it")
     p.set_defaults(func=run)
 
 
@@ -90,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
 
     check_output(args.out, args.overwrite)
     with Progress(100, "clm calibrate", unit="%", enabled=False if args.no_progress else None) as bar:
-        result = calibrate(args.bag, args.method, opts, progress=bar.fraction)
+        result = calibrate(args.bag, args.method, opts, progress=bar.fraction,
+                           allow_partial=getattr(args, "allow_partial", False))
     with output_dir(args.out, args.overwrite) as out:
         files = write_outputs(result, out, plots=not args.no_plots)
     print(f"calibrate: {args.method} test, {result.model}, band {result.band[0]:g}-{result.band[1]:g} Hz, "

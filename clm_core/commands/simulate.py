@@ -311,11 +311,8 @@ def _front(block: Any) -> Any:
 
 
 def _write_bag(d_out: Path, storage: str) -> None:
-    """DIR/bag from DIR/history.npz (rosbags only, no middleware)."""
-    try:
-        from clm_ros.history_bag import write_history_bag  # noqa: TID251 - moves into clm_core.io on p1-io (H2)
-    except ImportError as exc:
-        raise InputError(f"--bag needs the ROS layer (clm_ros, clm_msgs): {exc}; run scripts/bootstrap.sh") from None
+    """DIR/bag from DIR/history.npz (clm_core.io.bags.write_history_bag; rosbags only, no middleware)."""
+    from clm_core.io.bags import write_history_bag
     from clm_core.io.history import load_history
 
     bag = d_out / "bag"

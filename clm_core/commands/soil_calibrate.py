@@ -229,7 +229,7 @@ def _quality_line(label: str, fit: Any) -> str:
 #
 # ``--impact-bag`` also writes ``DIR/reference_impact_bag``: a soil impact test
 # bag (calibration-bag format) of the rigorous row's response to the Eq. (1)
-# pulse, with ``reference.yaml`` (clm_core.halfspace.impact_bag). It reuses
+# pulse, with ``reference.yaml`` (clm_core.synthetic.reference). It reuses
 # the sweep just written (``sweep.npz``, ``summary.json``): no second BEM run.
 # Added by wrapping ``register`` and ``run``; without the flag nothing changes.
 
@@ -292,7 +292,7 @@ def run(args: argparse.Namespace) -> int:  # type: ignore[no-redef]
     """Run the calibration (and write the reference impact bag with ``--impact-bag``); returns 0 on success."""
     if not getattr(args, "impact_bag", False):
         return _run_base(args)
-    from clm_core.halfspace.impact_bag import RigorousReference, write_reference_impact_bag
+    from clm_core.synthetic.reference import RigorousReference, write_reference_impact_bag
 
     _check_args(args)
     bag_path = _check_impact_bag(args)

@@ -22,12 +22,12 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from clm_core.calibration.synthetic import add_noise, simulate_impact, write_bag
 from clm_core.cli import main
 from clm_core.io import plots
 from clm_core.io.plots import _base
 from clm_core.io.report_index import write_index
 from clm_core.params import load_soil
+from clm_core.synthetic import add_noise, simulate_impact, write_bag
 from tests.io.figure_checks import curve_extremes, figure_problems, png_problems
 
 REPO = Path(__file__).resolve().parents[2]

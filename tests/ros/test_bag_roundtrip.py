@@ -13,39 +13,31 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from clm_ros.conversions import rosbags_wheel_loads
-from clm_ros.msg_types import typestore
-from clm_ros.replay import open_reader
-from rosbags.rosbag2 import StoragePlugin, Writer
-
 from clm_core.cli import main as clm
+from clm_core.io.bags import BagReader, BagWriter
+from clm_core.io.messages import wheel_loads_msg
+from clm_core.io.timebase import NS, stamp_ns
 
 NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
 N = 300
 
 
 def _write_wheel_bag(path, storage: str) -> None:  # type: ignore[no-untyped-def]
-    ts = typestore()
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    with Writer(path, version=8, storage_plugin=plugin) as w:
-        c = w.add_connection("/wheel_loads", "clm_msgs/msg/WheelLoads", typestore=ts)
+    with BagWriter(path, storage) as w:
+        c = w.add_topic("/wheel_loads", "clm_msgs/msg/WheelLoads")
         for k in range(N):
-            t = 7 * 10**9 + k * 10**6
-            m = rosbags_wheel_loads(ts, t, [3, 4], [30.0 + 0.03 * k, 27.0 + 0.03 * k], [80e3 + 10 * k, 85e3])
-            w.write(c, t, ts.serialize_cdr(m, "clm_msgs/msg/WheelLoads"))
+            t = 7 * NS + k * 1_000_000
+            w.write_msg(c, t, wheel_loads_msg(w.typestore, t, [3, 4], [30.0 + 0.03 * k, 27.0 + 0.03 * k],
+                                              [80e3 + 10 * k, 85e3]))
 
 
 def _responses(path, topic: str = "/sleeper_response") -> list[tuple[int, np.ndarray]]:  # type: ignore[no-untyped-def]
-    reader = open_reader(path)
-    try:
-        conns = [c for c in reader.connections if c.topic == topic]
+    with BagReader(path) as reader:
         out = []
-        for conn, _, raw in reader.messages(connections=conns):
-            m = reader.deserialize(raw, conn.msgtype)
-            out.append((m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, np.asarray(m.soil_force)))
+        for m in reader.messages([topic]):
+            msg = reader.deserialize(m.data, m.msgtype)
+            out.append((stamp_ns(msg.header), np.asarray(msg.soil_force)))
         return out
-    finally:
-        reader.close()
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])

@@ -1,4 +1,4 @@
-"""Bags with clm_msgs types written by rosbags, read back with AnyReader.
+"""Bags with clm_msgs types written by the suite's writer (clm_core.io.bags), read back with rosbags' AnyReader.
 
 The reader is given no type store: it must use the message definitions
 embedded in the bag (mcap schema records / the sqlite3 ``message_definitions``
@@ -15,9 +15,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from clm_ros.msg_types import typestore
 from rosbags.highlevel import AnyReader
-from rosbags.rosbag2 import StoragePlugin, Writer
+
+from clm_core.io.bags import BagWriter
+from clm_core.io.messages import typestore
 
 pytestmark = pytest.mark.ros
 
@@ -61,12 +62,12 @@ def _messages(ts: Any, k: int) -> tuple[Any, Any]:
     return wheels, sleepers
 
 
-def _write_bag(path: Path, storage: StoragePlugin) -> tuple[Any, list[tuple[Any, Any]]]:
+def _write_bag(path: Path, storage: str) -> tuple[Any, list[tuple[Any, Any]]]:
     ts = typestore()
     written = []
-    with Writer(path, version=9, storage_plugin=storage) as writer:
-        c_wheels = writer.add_connection(WHEELS_TOPIC, "clm_msgs/msg/WheelLoads", typestore=ts)
-        c_sleepers = writer.add_connection(SLEEPERS_TOPIC, "clm_msgs/msg/SleeperResponse", typestore=ts)
+    with BagWriter(path, storage, typestore=ts) as writer:
+        c_wheels = writer.add_topic(WHEELS_TOPIC, "clm_msgs/msg/WheelLoads")
+        c_sleepers = writer.add_topic(SLEEPERS_TOPIC, "clm_msgs/msg/SleeperResponse")
         for k in range(N):
             wheels, sleepers = _messages(ts, k)
             t = T0_NS + k * 1_000_000
@@ -103,11 +104,11 @@ def _same_sleepers(got: Any, want: Any) -> None:
         np.testing.assert_array_equal(np.asarray(getattr(got, name)), getattr(want, name), name)
 
 
-@pytest.mark.parametrize("storage", [StoragePlugin.MCAP, StoragePlugin.SQLITE3], ids=["mcap", "sqlite3"])
-def test_bag_roundtrip_with_embedded_definitions(tmp_path: Path, storage: StoragePlugin) -> None:
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_bag_roundtrip_with_embedded_definitions(tmp_path: Path, storage: str) -> None:
     bag = tmp_path / "bag"
     ts, written = _write_bag(bag, storage)
-    suffix = ".mcap" if storage == StoragePlugin.MCAP else ".db3"
+    suffix = ".mcap" if storage == "mcap" else ".db3"
     assert list(bag.glob(f"*{suffix}")), f"no {suffix} file in {list(bag.iterdir())}"
 
     got: dict[str, list[Any]] = {WHEELS_TOPIC: [], SLEEPERS_TOPIC: []}

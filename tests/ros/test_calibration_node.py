@@ -288,7 +288,7 @@ def test_push_to_track_node_accepted(ros_python, client_factory) -> None:  # typ
 
 
 def test_push_refused_reason_propagated(ros_python, client_factory, weak_patch_file) -> None:  # type: ignore[no-untyped-def]
-    _start_calibration_node(ros_python, "-p", "push_timeout:=1.0")
+    _start_calibration_node(ros_python, "-p", "push_timeout:=4.0")
     ros_python.spawn(TRACK_NODE, ["--ros-args", "-p", f"params_file:={weak_patch_file}"], name="track_node_weak")
     c = client_factory()
     c.ready()
@@ -307,10 +307,11 @@ def test_push_refused_reason_propagated(ros_python, client_factory, weak_patch_f
     got = c.get_params("/clm_track_node", SOIL_KEYS)
     assert all(math.isnan(v.double_value) for v in got), [v.double_value for v in got]
     # an absent target: reported after push_timeout, the node keeps serving
+    # (4 s: a service found by discovery may take ~1 s more to answer on a loaded machine)
     resp = c.calibrate(IMPACT_BAG, "impact", "compare: false", push=True, target="/no_such_node")
     assert not resp.success
     assert "fit succeeded" in resp.message
-    assert "no parameter service /no_such_node/set_parameters_atomically within 1 s" in resp.message
+    assert "no parameter service /no_such_node/set_parameters_atomically within 4 s" in resp.message
     resp = c.calibrate(IMPACT_BAG, "impact", "compare: false", push=True, target="")
     assert not resp.success and "target_node is empty" in resp.message
 

@@ -1,4 +1,4 @@
-"""clm_msgs in rosbags (clm_ros.msg_types) and in rclpy agree, byte for byte.
+"""clm_msgs in rosbags (clm_core.io.messages) and in rclpy agree, byte for byte.
 
 rosbags-serialised messages deserialize with rclpy and rclpy-serialised ones
 with rosbags, field by field; the RIHS01 type hashes rosbags computes equal
@@ -26,8 +26,9 @@ pytest.importorskip(
 
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse  # noqa: E402
 from clm_msgs.srv import Calibrate  # noqa: E402
-from clm_ros.msg_types import interface_dir, source_interface_dir, typestore  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+
+from clm_core.io.messages import interface_dir, source_interface_dir, typestore  # noqa: E402
 
 MESSAGES = ("WheelLoad", "WheelLoads", "SleeperResponse", "WheelRailResponse")
 

@@ -565,8 +565,10 @@ DEMO_BAG = REPO / "bags" / "demo" / "demo_bag"
 
 def test_demo_bag_is_small_complete_and_replays_bit_for_bit(tmp_path: Path) -> None:
     import numpy as np
-    from clm_ros.replay import open_reader, replay_bag
+    from clm_ros.replay import replay_bag
 
+    from clm_core.io.bags import BagReader
+    from clm_core.io.timebase import stamp_ns
     from clm_core.online import OnlineTrackModel
     from clm_core.params import load_model
 
@@ -574,7 +576,7 @@ def test_demo_bag_is_small_complete_and_replays_bit_for_bit(tmp_path: Path) -> N
     assert size < 4e6, f"demo bag {size / 1e6:.1f} MB"
     meta = yaml.safe_load((DEMO_BAG / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     counts = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
-    assert meta["version"] == 8 and meta["storage_identifier"] == "mcap"
+    assert meta["version"] == 9 and meta["storage_identifier"] == "mcap" and meta["ros_distro"] == "jazzy"
     assert counts["/wheel_loads"] == counts["/sleeper_response"] == counts["/wheel_rail_response"] == 1001
     # the track node's output is a function of its input: offline replay gives the recorded responses
     model = OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=61)
@@ -583,14 +585,10 @@ def test_demo_bag_is_small_complete_and_replays_bit_for_bit(tmp_path: Path) -> N
 
     def responses(path: Path) -> dict[tuple[str, int], Any]:
         out = {}
-        reader = open_reader(path)
-        try:
-            for conn, _, raw in reader.messages():
-                if conn.topic in ("/sleeper_response", "/wheel_rail_response"):
-                    m = reader.deserialize(raw, conn.msgtype)
-                    out[(conn.topic, m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)] = m
-        finally:
-            reader.close()
+        with BagReader(path) as reader:
+            for bm in reader.messages(["/sleeper_response", "/wheel_rail_response"]):
+                m = reader.deserialize(bm.data, bm.msgtype)
+                out[(bm.topic, stamp_ns(m.header))] = m
         return out
 
     rec, rep = responses(DEMO_BAG), responses(tmp_path / "out")

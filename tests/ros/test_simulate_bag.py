@@ -11,25 +11,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("clm_ros.history_bag", reason="clm_ros not installed")
-
-from clm_ros.replay import open_reader
-
 from clm_core.cli import main as clm
+from clm_core.io.bags import BagReader
+from clm_core.io.timebase import NS, stamp_ns
 
 
 def _soil_forces(bag, topic="/sleeper_response"):  # type: ignore[no-untyped-def]
-    reader = open_reader(bag)
-    try:
+    with BagReader(bag) as reader:
         out = {}
-        conns = [c for c in reader.connections if c.topic == topic]
-        for conn, _, raw in reader.messages(connections=conns):
-            m = reader.deserialize(raw, conn.msgtype)
-            t = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+        for bm in reader.messages([topic]):
+            m = reader.deserialize(bm.data, bm.msgtype)
+            t = stamp_ns(m.header)
             out[t] = dict(zip(np.asarray(m.sleeper_index).tolist(), np.asarray(m.soil_force).tolist()))
         return out
-    finally:
-        reader.close()
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
@@ -46,7 +40,7 @@ def test_simulate_bag_replays(tmp_path, storage) -> None:  # type: ignore[no-unt
     worst = 0.0
     for t, fa in list(a.items())[200:]:
         fb = b[t]
-        common = [g for g in fa if g in fb and abs(g * 0.6 - 30 * t / 1e9) < 6.0]  # within 10 bays of the load
+        common = [g for g in fa if g in fb and abs(g * 0.6 - 30 * t / NS) < 6.0]  # within 10 bays of the load
         worst = max(worst, max(abs(fa[g] - fb[g]) for g in common))
     assert worst < 1e-4 * peak, worst
     print(f"worst difference {worst:.3g} N of peak {peak:.4g} N")

@@ -18,11 +18,12 @@ pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/set
 from clm_ros.conversions import rclpy_wheel_loads
 from driver import Driver
 
+from clm_core.io.timebase import NS
 from clm_core.online import OnlineTrackModel, Rejected, WheelFrame
 from clm_core.params import load_model
 
 NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
-NS = 10**9
+
 OFF = np.array([0.0, 3.0])
 
 

@@ -1,9 +1,12 @@
-"""Bag record and play over DDS with ``rosbags`` (``ros2 bag`` is not available here).
+"""Bag record and play over DDS with the suite's bag reader and writer (``ros2 bag`` is not available here).
 
 - :class:`BagRecorder`: raw (serialized) subscriptions written as they arrive
-  to a rosbag2 bag (mcap by default, sqlite3 as an option), reliable
-  keep-all QoS so that nothing the publisher sends reliably is lost; the
-  bytes are the middleware's own, so the bag plays in a real ``ros2 bag``.
+  to a rosbag2 bag (mcap by default, sqlite3 as an option) by
+  :class:`clm_core.io.bags.BagWriter`, reliable keep-all QoS so that nothing
+  the publisher sends reliably is lost; the bytes are the middleware's own and
+  the metadata what ``ros2 bag record`` writes (offered QoS profiles, message
+  definitions with comments, type hashes), so the bag plays in a real
+  ``ros2 bag``.
 - :func:`play_bag`: publishes a bag's messages (raw bytes) on their topics at
   real time, a scaled rate, or as fast as a subscriber takes them
   (``rate=0``: at most ``max_in_flight`` messages ahead of the responses seen
@@ -20,11 +23,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from rosbags.rosbag2 import Writer
-
+from clm_core.io.bags import BagReader, BagWriter
+from clm_core.io.errors import BagError
+from clm_core.io.timebase import NS
 from clm_ros.errors import ClmRosError
-from clm_ros.msg_types import typestore
-from clm_ros.replay import open_reader, storage_plugin
 
 
 def message_class(msgtype: str) -> Any:
@@ -45,8 +47,47 @@ def data_qos(depth: int = 0) -> Any:
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
 
 
+def qos_from_rclpy(profile: Any) -> Any:
+    """An rclpy QoS profile (as discovered for a publisher) as the bag writer records it (rosbags ``Qos``)."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    def t(d: Any) -> QosTime:
+        return QosTime(*divmod(int(d.nanoseconds), NS))
+
+    def enum(kind: Any, policy: Any) -> Any:
+        try:
+            return kind(int(policy.value if hasattr(policy, "value") else policy))
+        except ValueError:
+            return kind.UNKNOWN
+
+    return Qos(
+        history=enum(QosHistory, profile.history),
+        depth=int(profile.depth),
+        reliability=enum(QosReliability, profile.reliability),
+        durability=enum(QosDurability, profile.durability),
+        deadline=t(profile.deadline),
+        lifespan=t(profile.lifespan),
+        liveliness=enum(QosLiveliness, profile.liveliness),
+        liveliness_lease_duration=t(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
+    )
+
+
+def offered_qos(node: Any, topic: str) -> list[Any]:
+    """The QoS profiles the publishers of ``topic`` offer, as ``ros2 bag record`` stores them."""
+    return [qos_from_rclpy(info.qos_profile) for info in node.get_publishers_info_by_topic(topic)]
+
+
 class BagRecorder:
-    """Record topics of a running ROS graph to a rosbag2 bag.
+    """Record topics of a running ROS graph to a rosbag2 bag, as ``ros2 bag record`` does.
+
+    Raw (serialized) subscriptions, reliable keep-all, written as they arrive
+    with the receive time as log time, by the one bag writer
+    (:class:`clm_core.io.bags.BagWriter`: format 9, the message definitions
+    with their comments, type hashes). A topic enters the bag with its first
+    message, with the QoS profiles its publishers offer at that moment; topics
+    without messages are added when recording stops. The bag is written under
+    a temporary name and appears at ``path`` only when :meth:`close` has run.
 
     Parameters
     ----------
@@ -60,44 +101,75 @@ class BagRecorder:
     """
 
     def __init__(self, node: Any, path: str | Path, topics: dict[str, str], storage: str = "mcap") -> None:
-        out = Path(path)
-        if out.exists():
-            raise ClmRosError(f"output bag {str(out)!r} exists; choose a new path")
-        self.ts = typestore()
-        self.writer = Writer(out, version=8, storage_plugin=storage_plugin(storage))
-        self.writer.open()
+        try:
+            self.writer = BagWriter(path, storage)
+        except BagError as exc:
+            raise ClmRosError(str(exc)) from None
+        self.ts = self.writer.typestore
+        self.topics = dict(topics)
         self.counts: dict[str, int] = {}
+        self._conns: dict[str, Any] = {}
         self._subs = []
         self._node = node
-        for topic, msgtype in topics.items():
-            if msgtype not in self.ts.types:
-                raise ClmRosError(f"topic {topic}: type {msgtype!r} unknown to the bag type store")
-            conn = self.writer.add_connection(topic, msgtype, typestore=self.ts)
-            self.counts[topic] = 0
-            self._subs.append(
-                node.create_subscription(
-                    message_class(msgtype), topic, self._callback(topic, conn), data_qos(), raw=True
-                )
-            )
         self.closed = False
+        try:
+            for topic, msgtype in topics.items():
+                if msgtype not in self.ts.types:
+                    raise ClmRosError(f"topic {topic}: type {msgtype!r} unknown to the bag type store")
+                self.counts[topic] = 0
+                self._subs.append(
+                    node.create_subscription(message_class(msgtype), topic, self._callback(topic), data_qos(), raw=True)
+                )
+        except BaseException:
+            self.abort()
+            raise
 
-    def _callback(self, topic: str, conn: Any) -> Any:
+    def _connection(self, topic: str) -> Any:
+        conn = self._conns.get(topic)
+        if conn is None:
+            qos = offered_qos(self._node, topic)
+            conn = self._conns[topic] = self.writer.add_topic(topic, self.topics[topic], qos=qos)
+        return conn
+
+    def _callback(self, topic: str) -> Any:
         def cb(raw: bytes) -> None:
             if self.closed:
                 return
-            self.writer.write(conn, self._node.get_clock().now().nanoseconds, bytes(raw))
+            self.writer.write(self._connection(topic), self._node.get_clock().now().nanoseconds, bytes(raw))
             self.counts[topic] += 1
 
         return cb
 
+    def _stop(self) -> None:
+        self.closed = True
+        for s in self._subs:
+            self._node.destroy_subscription(s)
+        self._subs = []
+
     def close(self) -> dict[str, int]:
-        """Stop recording and close the bag; return the message counts per topic."""
+        """Stop recording, finish the bag (it appears at its path); return the message counts per topic."""
         if not self.closed:
-            self.closed = True
-            for s in self._subs:
-                self._node.destroy_subscription(s)
+            self._stop()
+            for topic in self.topics:
+                self._connection(topic)
             self.writer.close()
         return dict(self.counts)
+
+    def abort(self) -> None:
+        """Stop recording and drop the bag."""
+        if not self.closed:
+            self._stop()
+        self.writer.abort()
+
+
+def _type_clash(node: Any, topic: str, msgtype: str, publishers: bool) -> str | None:
+    """What another endpoint on ``topic`` expects, if its type differs from ``msgtype``."""
+    infos = node.get_publishers_info_by_topic(topic) if publishers else node.get_subscriptions_info_by_topic(topic)
+    other = sorted({i.topic_type for i in infos if i.topic_type != msgtype})
+    if not other:
+        return None
+    who = "publishers" if publishers else "subscribers"
+    return f"topic {topic}: the {who} on the graph use {', '.join(other)}, not {msgtype}"
 
 
 def play_bag(
@@ -111,15 +183,23 @@ def play_bag(
     discovery_timeout: float = 20.0,
     idle_timeout: float = 30.0,
     min_subscribers: int = 1,
+    allow_partial: bool = False,
 ) -> dict[str, int]:
     """Publish a bag's messages on their topics.
+
+    The bag is read once before anything is published: a damaged bag (counts
+    that disagree with its metadata, a damaged chunk) is refused before the
+    first message goes out, unless ``allow_partial`` (then what is readable is
+    played). A subscriber (or, with flow control, an answering publisher) of
+    another message type on a played topic is reported at once, by name of
+    the types, instead of waiting for a subscriber that can never match.
 
     Parameters
     ----------
     node : rclpy.node.Node
         Node that owns the publishers (this function spins it).
     path : path
-        Bag (mcap or sqlite3).
+        Bag (mcap or sqlite3; see :mod:`clm_core.io.bags` for what a bag is).
     topics : sequence of str, optional
         Topics to play (default all).
     rate : float
@@ -136,42 +216,71 @@ def play_bag(
     min_subscribers : int
         Subscribers each topic must have before playing starts (count a
         recorder in the same graph too).
+    allow_partial : bool
+        Play what is left of a damaged bag.
 
     Returns
     -------
     dict topic -> messages published
-    """
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
 
+    Raises
+    ------
+    ClmRosError
+        Bad arguments, unreadable, empty or damaged bag, a type clash on the
+        graph, no subscriber after ``discovery_timeout``, no answer for ``idle_timeout``.
+    """
     if rate < 0:
         raise ClmRosError(f"rate = {rate}: must be >= 0 (0: as fast as the subscriber takes them)")
     if rate == 0 and not ack_topic:
         raise ClmRosError("rate = 0 needs ack_topic (the topic that answers each message) for flow control")
+    try:
+        reader = BagReader(path, allow_partial=allow_partial)
+    except BagError as exc:
+        raise ClmRosError(str(exc)) from None
+    try:
+        return _play(node, reader, topics, rate, ack_topic, ack_type, max_in_flight, discovery_timeout,
+                     idle_timeout, min_subscribers)
+    except BagError as exc:
+        raise ClmRosError(str(exc)) from None
+    finally:
+        reader.close()
+
+
+def _play(node: Any, reader: BagReader, topics: Sequence[str] | None, rate: float, ack_topic: str | None,
+          ack_type: str, max_in_flight: int, discovery_timeout: float, idle_timeout: float,
+          min_subscribers: int) -> dict[str, int]:
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    play = [t for t in reader.topics if topics is None or t in topics]
+    if not play:
+        raise ClmRosError(f"bag {str(reader.path)!r}: none of the topics {list(topics or [])} are in it")
+    for _ in reader.messages(play):  # the whole bag once: damage is found before anything is published
+        pass
     acked = [0]
     ack_sub = None
-    if rate == 0:
-        ack_sub = node.create_subscription(
-            message_class(ack_type), ack_topic, lambda _m: acked.__setitem__(0, acked[0] + 1), data_qos()
-        )
     sent: dict[str, int] = {}
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
     spin = executor.spin_once
-    reader = open_reader(path)
+    pubs: dict[str, Any] = {}
     try:
-        conns = [c for c in reader.connections if topics is None or c.topic in topics]
-        if not conns:
-            raise ClmRosError(f"bag {str(path)!r}: none of the topics {list(topics or [])} are in it")
-        pubs = {}
-        for c in conns:
-            if c.topic not in pubs:
-                pubs[c.topic] = node.create_publisher(message_class(c.msgtype), c.topic, data_qos())
-                sent[c.topic] = 0
+        if rate == 0:
+            ack_sub = node.create_subscription(
+                message_class(ack_type), ack_topic, lambda _m: acked.__setitem__(0, acked[0] + 1), data_qos()
+            )
+        for t in play:
+            pubs[t] = node.create_publisher(message_class(reader.topics[t].msgtype), t, data_qos())
+            sent[t] = 0
         t0 = time.monotonic()
         while any(p.get_subscription_count() < min_subscribers for p in pubs.values()) or (
             ack_sub is not None and ack_sub.get_publisher_count() < 1
         ):
+            clash = [c for t in pubs if (c := _type_clash(node, t, reader.topics[t].msgtype, False))]
+            if ack_sub is not None and ack_topic:
+                clash += [c for c in [_type_clash(node, ack_topic, ack_type, True)] if c]
+            if clash:
+                raise ClmRosError(f"bag {str(reader.path)!r}: " + "; ".join(clash))
             if time.monotonic() - t0 > discovery_timeout:
                 missing = [t for t, p in pubs.items() if p.get_subscription_count() < min_subscribers]
                 if ack_sub is not None and ack_sub.get_publisher_count() < 1:
@@ -181,11 +290,11 @@ def play_bag(
         start_wall = time.monotonic()
         start_bag: int | None = None
         total = 0
-        for conn, bag_t, raw in reader.messages(connections=conns):
+        for m in reader.messages(play):
             if start_bag is None:
-                start_bag = bag_t
+                start_bag = m.log_ns
             if rate > 0:
-                due = start_wall + (bag_t - start_bag) / 1e9 / rate
+                due = start_wall + (m.log_ns - start_bag) / NS / rate
                 while (wait := due - time.monotonic()) > 0:
                     spin(timeout_sec=min(wait, 0.01))
             else:
@@ -197,13 +306,14 @@ def play_bag(
                         last = time.monotonic()
                     elif time.monotonic() - last > idle_timeout:
                         raise ClmRosError(f"no answer on {ack_topic} for {idle_timeout:g} s ({acked[0]} of {total})")
-            pubs[conn.topic].publish(bytes(raw))
-            sent[conn.topic] += 1
+            pubs[m.topic].publish(m.data)
+            sent[m.topic] += 1
             total += 1
         for p in pubs.values():
             p.wait_for_all_acked(rclpy.duration.Duration(seconds=10))
     finally:
-        reader.close()
+        for p in pubs.values():
+            node.destroy_publisher(p)
         if ack_sub is not None:
             node.destroy_subscription(ack_sub)
         executor.remove_node(node)

@@ -1,9 +1,10 @@
-"""Messages <-> clm_core data, in one place (round-trip tested).
+"""rclpy flavour of the message conversions, built on :mod:`clm_core.io.messages`.
 
-Works with both message flavours: rclpy classes (``clm_msgs.msg``) and
-rosbags dataclasses (from :func:`clm_ros.msg_types.typestore`); both have the
-same field names. Stamps are carried as integer nanoseconds so that a
-response echoes its input's stamp exactly.
+The domain side (``WheelLoads`` -> the online model's frame, a response ->
+message arrays) and the rosbags flavour live in the core
+(:mod:`clm_core.io.messages`); this module only builds the rclpy classes of
+``clm_msgs``. Stamps are integer nanoseconds (:mod:`clm_core.io.timebase`),
+so that a response echoes its input's stamp exactly.
 """
 
 from __future__ import annotations
@@ -12,75 +13,44 @@ import array
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from clm_core.online import ResponseFrame, WheelFrame
+from clm_core.io.messages import sleeper_fields, wheel_fields
+from clm_core.io.timebase import ns_to_stamp
+from clm_core.online import ResponseFrame
 
-NS = 1_000_000_000
-
-
-def stamp_ns(header: Any) -> int:
-    """Header stamp as integer nanoseconds."""
-    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
-
-
-def frame_from_msg(msg: Any) -> WheelFrame:
-    """``clm_msgs/WheelLoads`` (rclpy or rosbags) -> :class:`WheelFrame` (stamp in s)."""
-    wheels = list(msg.wheels)
-    return WheelFrame.of(
-        stamp_ns(msg.header) / NS,
-        [w.id for w in wheels],
-        [w.position for w in wheels],
-        [w.force for w in wheels],
-        [w.speed for w in wheels],
-    )
-
-
-def sleeper_fields(resp: ResponseFrame) -> dict[str, np.ndarray]:
-    """Array fields of a ``clm_msgs/SleeperResponse`` for a response."""
-    s = resp.sleepers
-    return {
-        "sleeper_index": np.asarray(s.sleeper_index, dtype=np.int64),
-        "position": np.asarray(s.sleeper_x, dtype=np.float64),
-        "soil_force": np.asarray(s.soil_force, dtype=np.float64),
-        "rail_deflection": np.asarray(s.rail_deflection, dtype=np.float64),
-        "sleeper_displacement": np.asarray(s.sleeper_displacement, dtype=np.float64),
-        "area_displacement": np.asarray(s.area_displacement, dtype=np.float64),
-    }
-
-
-def wheel_fields(resp: ResponseFrame) -> dict[str, np.ndarray]:
-    """Array fields of a ``clm_msgs/WheelRailResponse`` for a response."""
-    return {
-        "wheel_id": np.asarray(resp.wheel_ids, dtype=np.uint32),
-        "position": np.asarray(resp.wheel_positions, dtype=np.float64),
-        "rail_deflection": np.asarray(resp.wheel_deflection, dtype=np.float64),
-        "rail_velocity": np.asarray(resp.wheel_velocity, dtype=np.float64),
-    }
-
-
-# ---------------------------------------------------------------- rclpy flavour
+__all__ = ["rclpy_header", "rclpy_responses", "rclpy_wheel_loads"]
 
 
 def rclpy_header(t_ns: int, frame_id: str) -> Any:
-    """std_msgs/Header (rclpy) with the given stamp."""
+    """``std_msgs/Header`` (rclpy) stamped ``t_ns`` [ns]."""
     from builtin_interfaces.msg import Time
     from std_msgs.msg import Header
 
-    return Header(stamp=Time(sec=t_ns // NS, nanosec=t_ns % NS), frame_id=frame_id)
+    sec, nanosec = ns_to_stamp(t_ns)
+    return Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
 
 
 def rclpy_wheel_loads(
-    t_ns: int, ids: Any, positions: Any, forces: Any, speeds: Any = None, frame_id: str = "track"
+    t_ns: int,
+    ids: ArrayLike,
+    positions: ArrayLike,
+    forces: ArrayLike,
+    speeds: ArrayLike | None = None,
+    frame_id: str = "track",
 ) -> Any:
-    """Build a ``clm_msgs/WheelLoads`` (rclpy)."""
+    """A ``clm_msgs/WheelLoads`` (rclpy): ids, positions [m], forces [N] (downwards), speeds [m/s] (default NaN)."""
     from clm_msgs.msg import WheelLoad, WheelLoads
 
-    sp = [float("nan")] * len(ids) if speeds is None else speeds
+    i = np.asarray(ids).ravel().tolist()
+    p = np.asarray(positions, dtype=float).ravel().tolist()
+    f = np.asarray(forces, dtype=float).ravel().tolist()
+    v = [float("nan")] * len(i) if speeds is None else np.asarray(speeds, dtype=float).ravel().tolist()
     return WheelLoads(
         header=rclpy_header(t_ns, frame_id),
         wheels=[
-            WheelLoad(id=int(i), position=float(p), force=float(f), speed=float(v))
-            for i, p, f, v in zip(ids, positions, forces, sp)
+            WheelLoad(id=int(a), position=float(b), force=float(c), speed=float(d))
+            for a, b, c, d in zip(i, p, f, v)
         ],
     )
 
@@ -96,53 +66,17 @@ def _array(v: np.ndarray) -> array.array[Any]:
 
 
 def rclpy_responses(resp: ResponseFrame, t_ns: int, frame_id: str = "track") -> tuple[Any, Any]:
-    """(SleeperResponse, WheelRailResponse) rclpy messages for a response, stamped ``t_ns``.
+    """(SleeperResponse, WheelRailResponse) rclpy messages for a response, stamped ``t_ns`` [ns].
 
     Arrays go in as ``array.array`` (a memory copy): lists would be checked
     element by element by the generated setters (~0.1 ms per message).
     """
     from clm_msgs.msg import SleeperResponse, WheelRailResponse
 
-    h = rclpy_header(t_ns, frame_id)
-    s = SleeperResponse(header=h)
+    s = SleeperResponse(header=rclpy_header(t_ns, frame_id))
     for k, v in sleeper_fields(resp).items():
         setattr(s, k, _array(v))
     w = WheelRailResponse(header=rclpy_header(t_ns, frame_id))
     for k, v in wheel_fields(resp).items():
         setattr(w, k, _array(v))
     return s, w
-
-
-# ---------------------------------------------------------------- rosbags flavour
-
-
-def _rb_header(ts: Any, t_ns: int, frame_id: str) -> Any:
-    Time = ts.types["builtin_interfaces/msg/Time"]
-    Header = ts.types["std_msgs/msg/Header"]
-    return Header(stamp=Time(sec=t_ns // NS, nanosec=t_ns % NS), frame_id=frame_id)
-
-
-def rosbags_wheel_loads(
-    ts: Any, t_ns: int, ids: Any, positions: Any, forces: Any, speeds: Any = None, frame_id: str = "track"
-) -> Any:
-    """Build a ``clm_msgs/WheelLoads`` rosbags dataclass."""
-    WheelLoad = ts.types["clm_msgs/msg/WheelLoad"]
-    WheelLoads = ts.types["clm_msgs/msg/WheelLoads"]
-    sp = [float("nan")] * len(ids) if speeds is None else speeds
-    return WheelLoads(
-        header=_rb_header(ts, t_ns, frame_id),
-        wheels=[
-            WheelLoad(id=int(i), position=float(p), force=float(f), speed=float(v))
-            for i, p, f, v in zip(ids, positions, forces, sp)
-        ],
-    )
-
-
-def rosbags_responses(ts: Any, resp: ResponseFrame, t_ns: int, frame_id: str = "track") -> tuple[Any, Any]:
-    """(SleeperResponse, WheelRailResponse) rosbags dataclasses for a response."""
-    S = ts.types["clm_msgs/msg/SleeperResponse"]
-    W = ts.types["clm_msgs/msg/WheelRailResponse"]
-    return (
-        S(header=_rb_header(ts, t_ns, frame_id), **sleeper_fields(resp)),
-        W(header=_rb_header(ts, t_ns, frame_id), **wheel_fields(resp)),
-    )

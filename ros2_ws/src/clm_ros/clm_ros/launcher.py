@@ -231,7 +231,8 @@ def _run_demo(
 
 def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     """Read a demo bag back, plot it, and return figures (lags, peaks)."""
-    from clm_ros.replay import open_reader
+    from clm_core.io.bags import BagReader
+    from clm_core.io.timebase import stamp_ns
 
     wheel_t: list[int] = []
     wheel_F: list[np.ndarray] = []
@@ -243,23 +244,23 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     s_F: list[np.ndarray] = []
     s_w: list[np.ndarray] = []
     diag: dict[str, str] = {}
-    reader = open_reader(bag)
+    reader = BagReader(bag)
     try:
-        for conn, bag_t, raw in reader.messages():
-            m = reader.deserialize(raw, conn.msgtype)
-            if conn.topic == "/wheel_loads":
-                wheel_t.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec)
+        for bm in reader.messages():
+            m = reader.deserialize(bm.data, bm.msgtype)
+            if bm.topic == "/wheel_loads":
+                wheel_t.append(stamp_ns(m.header))
                 wheel_F.append(np.array([w.force for w in m.wheels]))
                 wheel_x.append(np.array([w.position for w in m.wheels]))
-            elif conn.topic == "/sleeper_response":
-                st = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-                recv[st] = bag_t
+            elif bm.topic == "/sleeper_response":
+                st = stamp_ns(m.header)
+                recv[st] = bm.log_ns
                 s_t.append(st)
                 s_idx.append(np.asarray(m.sleeper_index))
                 s_x.append(np.asarray(m.position))
                 s_F.append(np.asarray(m.soil_force))
                 s_w.append(np.asarray(m.rail_deflection))
-            elif conn.topic == "/diagnostics":
+            elif bm.topic == "/diagnostics":
                 for status in m.status:
                     if "track-soil" in status.name:
                         diag = {kv.key: kv.value for kv in status.values}

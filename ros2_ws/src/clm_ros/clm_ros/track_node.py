@@ -39,6 +39,8 @@ from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from clm_core.errors import ClmError
+from clm_core.io.messages import frame_from_msg
+from clm_core.io.timebase import stamp_ns
 from clm_core.online import OnlineTrackModel, Rejected
 from clm_core.params import (
     PARAMETER_DOCS,
@@ -47,7 +49,7 @@ from clm_core.params import (
     load_model,
     load_params_file,
 )
-from clm_ros.conversions import frame_from_msg, rclpy_responses, stamp_ns
+from clm_ros.conversions import rclpy_responses
 from clm_ros.parameters import declare_model_parameters, declare_settings
 
 NODE_NAME = "clm_track_node"

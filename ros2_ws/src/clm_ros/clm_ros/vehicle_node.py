@@ -33,14 +33,14 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from clm_core.errors import ClmError
+from clm_core.io.timebase import NS, stamp_ns
 from clm_core.params import load_model, load_params_file
 from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
-from clm_ros.conversions import rclpy_wheel_loads, stamp_ns
+from clm_ros.conversions import rclpy_wheel_loads
 from clm_ros.parameters import declare_settings
 
 NODE_NAME = "clm_vehicle_node"
-NS = 1_000_000_000
 
 
 class VehicleNode(Node):

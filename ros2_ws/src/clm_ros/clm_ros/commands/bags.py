@@ -17,7 +17,7 @@ def register(sub: Any) -> None:
         description="Raw subscriptions (reliable, keep-all) written to a bag until Ctrl-C, --duration or --count.",
     )
     r.add_argument("topics", nargs="+", help="TOPIC or TOPIC:TYPE (type default: discovered on the graph)")
-    r.add_argument("--out", required=True, help="output bag directory (must not exist)")
+    r.add_argument("--out", required=True, help="output bag directory (must not exist; appears when recording stops)")
     r.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])
     r.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     r.add_argument("--count", type=int, default=None, help="stop after this many messages on the first topic")
@@ -35,6 +35,8 @@ def register(sub: Any) -> None:
     p.add_argument("--ack-topic", default="/sleeper_response", help="answers for --rate 0 flow control")
     p.add_argument("--max-in-flight", type=int, default=20,
                    help="--rate 0: messages published ahead of their answers (default 20)")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="play what is left of a damaged bag (missing messages, damaged chunks) instead of refusing it")
     p.set_defaults(func=run_play)
 
 
@@ -92,7 +94,8 @@ def run_play(args: argparse.Namespace) -> int:
 
     node = rclpy.create_node("clm_bag_player")
     try:
-        sent = play_bag(node, args.bag, args.topics, args.rate, args.ack_topic, max_in_flight=args.max_in_flight)
+        sent = play_bag(node, args.bag, args.topics, args.rate, args.ack_topic, max_in_flight=args.max_in_flight,
+                        allow_partial=getattr(args, "allow_partial", False))
         print(json.dumps(sent))
     finally:
         node.destroy_node()

@@ -28,22 +28,22 @@ def register(sub: Any) -> None:
     for name in ("dt", "max_gap", "accept_new_wheels", "lead_sleepers"):
         add_setting(p, name)
     add_overwrite(p, "the output bag")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="replay what is left of a damaged input bag (missing messages or damaged chunks) instead of "
+                   "refusing it; the damage is reported")
     p.set_defaults(func=run)
 
 
 def _message_count(path: str, topic: str | None) -> int | None:
-    """Number of wheel-load messages in the bag (from its index), or None if it cannot be told."""
-    from clm_ros.replay import WHEEL_LOADS, open_reader
+    """Number of wheel-load messages in the bag (from its metadata), or None if it cannot be told."""
+    from clm_core.io.bags import BagReader
+    from clm_core.io.messages import WHEEL_LOADS
 
     try:
-        reader = open_reader(path)
+        with BagReader(path, allow_partial=True) as reader:
+            return reader.topics[reader.find(WHEEL_LOADS, topic)].message_count or None
     except Exception:
         return None  # replay_bag reports the error
-    try:
-        return sum(c.msgcount for c in reader.connections
-                   if c.msgtype == WHEEL_LOADS and (topic is None or c.topic == topic)) or None
-    finally:
-        reader.close()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         with Progress(_message_count(args.in_bag, args.topic), "clm replay", unit="msg") as bar:
             stats = replay_bag(args.in_bag, out, model, topic=args.topic, storage=args.storage,
-                               progress=bar.update_to)
+                               progress=bar.update_to, allow_partial=getattr(args, "allow_partial", False))
     except BaseException as exc:
         shutil.rmtree(out, ignore_errors=True)  # no partial output bag
         if isinstance(exc, ClmRosError):
@@ -86,5 +86,8 @@ def run(args: argparse.Namespace) -> int:
     rejected = ", ".join(f"{n} {k}" for k, n in sorted(stats.rejected.items())) or "none"
     print(f"replay: {stats.read} wheel-load messages read, {stats.accepted} accepted, rejected: {rejected}; "
           f"{quantity(stats.sim_time_s, 's')} simulated in {quantity(stats.wall_time_s, 's')} "
-          f"(real-time factor {quantity(stats.real_time_factor, '', 3)}) -> {out}")
+          f"(real-time factor {quantity(stats.real_time_factor, '', 3)}) -> {out}"
+          + (f"; partial input: {stats.read} of the {stats.expected} listed" if stats.damage else ""))
+    for line in stats.damage:
+        print(f"clm replay: warning: partial input: {line}", file=sys.stderr)
     return 0

@@ -41,17 +41,18 @@ import pytest
 import yaml
 
 from clm_core.calibration import CalibrationResult, calibrate
-from clm_core.calibration.synthetic import T0_NS
 from clm_core.cli import main
 from clm_core.errors import ParameterError
-from clm_core.fitting.clm_sums import ClmSumFit, fit_clm_sums
-from clm_core.halfspace.impact_bag import (
+from clm_core.io.timebase import stamp_ns
+from clm_core.params import SoilParams
+from clm_core.soil.chain import chain_matrices
+from clm_core.soil.fit import ClmSumFit, fit_clm_sums
+from clm_core.synthetic.reference import (
     RigorousReference,
     reference_impact_record,
     write_reference_impact_bag,
 )
-from clm_core.params import SoilParams
-from clm_core.soil.chain import chain_matrices
+from clm_core.synthetic.writer import T0_NS
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "bags" / "halfspace" / "impact_mevergnies_rigorous"
@@ -185,7 +186,7 @@ def _read_topics(path: Path, topics: tuple[str, ...]) -> dict[str, tuple[str, np
         for conn, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             z = msg.wrench.force.z if conn.msgtype.endswith("WrenchStamped") else msg.vector.z
-            st = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            st = stamp_ns(msg.header)
             e = out.setdefault(conn.topic, (conn.msgtype, [], []))
             e[1].append(st)
             e[2].append(z)

@@ -1,12 +1,15 @@
 """Soil impact-test bags from the rigorous half-space reference (data the CLM did not generate).
 
+(Was ``clm_core.halfspace.impact_bag``; it sits above :mod:`clm_core.halfspace`
+and :mod:`clm_core.calibration`, which do not import each other.)
+
 :func:`write_reference_impact_bag` writes the response of the 2n + 1
 contact areas of a soil profile to the decay pulse of Eq. (1) (Kouroussis et
 al. 2011), computed from the rigorous model (Green's functions + boundary
 elements, :mod:`clm_core.halfspace.bem`; time histories by
 :func:`clm_core.halfspace.impact.impact_response`), as a soil impact test
 bag in exactly the format of the calibration bags
-(:mod:`clm_core.calibration.synthetic`: same topics, message types,
+(:mod:`clm_core.synthetic.writer`: same topics, message types,
 channel map, noise definition and writer). Instead of ``truth.yaml`` the
 bag directory holds ``reference.yaml``: the profile, the rigorous model's
 settings and the CLM parameters fitted directly from the rigorous sums of
@@ -44,13 +47,13 @@ Route
    The applied force is computed through the same inverse FFT as the
    responses (the taper is an extra "area" column of the flexibility), so
    force and responses are an exact input-output pair of the rigorous model.
-4. Acquisition and noise as :mod:`clm_core.calibration.synthetic`: channels
+4. Acquisition and noise as :mod:`clm_core.synthetic.records`: channels
    ``/hammer/force`` (``geometry_msgs/msg/WrenchStamped``) and
    ``/soil/area_m20`` .. ``/soil/area_p20`` (``Vector3Stamped``, geophones:
    vertical velocity [m/s]), white Gaussian noise on every channel, force
    included, at SNR = 20 log10(rms over 0.1 s from the pulse onset / sigma)
-   (:func:`~clm_core.calibration.synthetic.add_noise`), written by
-   :func:`~clm_core.calibration.synthetic.write_bag` (mcap + zstd, or sqlite3).
+   (:func:`~clm_core.synthetic.records.add_noise`), written by
+   :func:`~clm_core.synthetic.writer.write_record` (mcap + zstd, or sqlite3).
 
 ``model="clm"`` sends the CLM chain fitted from the rigorous sums through the
 identical route: a control record that the CLM *can* explain, with the same
@@ -75,21 +78,13 @@ from numpy.typing import NDArray
 
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.signals import Signal
-from clm_core.calibration.synthetic import (
-    Storage,
-    Style,
-    SyntheticRecord,
-    _area_topic,
-    _plain,
-    _spec,
-    add_noise,
-    write_bag,
-)
 from clm_core.errors import ParameterError
-from clm_core.fitting.clm_sums import clm_chain_response
 from clm_core.halfspace.calibrate import SoilCalibration, calibrate_profile
 from clm_core.halfspace.impact import ImpactResponse, impact_response
 from clm_core.profile import SoilProfile, load_profile
+from clm_core.soil.chain import chain_frequency_response
+from clm_core.synthetic.records import SyntheticRecord, _area_topic, _spec, add_noise
+from clm_core.synthetic.writer import Storage, Style, plain, write_record
 
 __all__ = [
     "ReferenceImpactBag",
@@ -328,7 +323,7 @@ def reference_impact_record(
     if not taper_db > 0:
         raise ParameterError(f"taper_db = {taper_db:g}: must be > 0 [dB]")
     if source == "clm":
-        H = clm_chain_response(f, n_areas=n, **reference.clm_fit)
+        H = chain_frequency_response(dict(reference.clm_fit), n, f)
     # n_half = ceil(oversample f_max / df) + 1 must equal fs / (2 df) + 1 exactly
     oversample = fs / (2.0 * f_max) * (1.0 - 1e-12)
     settings_pulse: dict[str, Any] = {
@@ -419,7 +414,7 @@ def _reference_yaml(ref: RigorousReference, rec: SyntheticRecord, storage: str, 
     f = ref.freqs
     out: dict[str, Any] = {
         "method": "impact",
-        "generator": "clm_core.halfspace.impact_bag",
+        "generator": "clm_core.synthetic.reference",
         "source": rec.settings.get("source", "rigorous"),
         "profile": s.get("profile"),
         "rigorous_model": {
@@ -436,7 +431,7 @@ def _reference_yaml(ref: RigorousReference, rec: SyntheticRecord, storage: str, 
         },
         "clm_fitted_from_rigorous_sums": {
             "how": "clm_core.halfspace.calibrate.calibrate_profile: Eq. (16)/(18) sums of the rigorous row, "
-            "band- and norm-explicit least squares (clm_core.fitting.clm_sums.fit_clm_sums)",
+            "band- and norm-explicit least squares (clm_core.soil.fit.fit_clm_sums)",
             **fit,
         },
     }
@@ -445,7 +440,7 @@ def _reference_yaml(ref: RigorousReference, rec: SyntheticRecord, storage: str, 
     out["settings"] = dict(rec.settings)
     out["storage"] = storage
     out["style"] = style
-    return _plain(out)  # type: ignore[no-any-return]
+    return plain(out)  # type: ignore[no-any-return]
 
 
 def write_reference_impact_bag(
@@ -493,7 +488,7 @@ def write_reference_impact_bag(
     storage : {"mcap", "sqlite3"}
         rosbag2 storage plugin (mcap: zstd chunk compression).
     style : {"stamped", "float64", "block"}
-        Message style (:func:`clm_core.calibration.synthetic.write_bag`).
+        Message style (:func:`clm_core.synthetic.writer.write_bag`).
     reference : RigorousReference or SoilCalibration, optional
         A rigorous computation to reuse (its grid must start at 0 Hz and be
         uniform); default: computed here with ``sweep_max``, ``df``,
@@ -541,17 +536,15 @@ def write_reference_impact_bag(
     )
     if snr_db is not None:
         rec = add_noise(rec, snr_db, seed)
-    bag = write_bag(rec, out, storage=storage, style=style)
-    bag.truth.unlink()  # the calibration writer's truth.yaml: replaced by reference.yaml
     data = _reference_yaml(ref, rec, storage, style)
-    ref_path = out / "reference.yaml"
-    ref_path.write_text(
+    text = (
         "# Rigorous half-space reference this soil impact bag was generated from (SI units: N, m, s, kg).\n"
         "# Not a CLM truth: 'clm_fitted_from_rigorous_sums' is the CLM fitted directly to the rigorous sums,\n"
         "# for comparison with a calibration from the bag (docs/validation.md, 'Rigorous half-space reference').\n"
-        + yaml.safe_dump(data, sort_keys=False),
-        encoding="utf-8",
+        + yaml.safe_dump(data, sort_keys=False)
     )
+    bag_path = write_record(rec, out, storage=storage, style=style, files={"reference.yaml": text})
     return ReferenceImpactBag(
-        path=bag.path, channels=bag.channels, reference=ref_path, record=rec, response=resp, rigorous=ref
+        path=bag_path, channels=bag_path / "channels.yaml", reference=bag_path / "reference.yaml", record=rec,
+        response=resp, rigorous=ref
     )

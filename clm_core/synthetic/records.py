@@ -1,4 +1,4 @@
-"""Synthetic calibration bags from known parameters, with sensor noise.
+"""Synthetic calibration records from known parameters, with sensor noise (written by :mod:`.writer`).
 
 The records are made the way a measurement would be, by an independent route
 from the one the fit uses:
@@ -16,36 +16,21 @@ from the one the fit uses:
   being the rms of the clean channel over ``snr_window`` seconds from each
   hit (impact, receptance) or over the whole record (pass-by).
 
-Bags are written with rosbags (mcap by default, zstd chunk compression;
-sqlite3 as an option), with the channel map (``channels.yaml``) and the known
-values (``truth.yaml``) inside the bag directory. Message styles:
-
-- ``stamped`` (default): ``geometry_msgs/msg/WrenchStamped`` (force,
-  ``wrench.force.z``) and ``geometry_msgs/msg/Vector3Stamped`` (responses,
-  ``vector.z``), one message per sample and channel, ``header.stamp`` =
-  acquisition time;
-- ``float64``: ``std_msgs/msg/Float64`` per sample (time = bag log time);
-- ``block``: ``std_msgs/msg/Float64MultiArray`` blocks of ``block_size``
-  samples (first sample at the log time, ``sample_rate`` in the map);
-- pass-by: ``clm_msgs/msg/WheelLoads`` and ``clm_msgs/msg/SleeperResponse``
-  (the suite's messages; writing them needs ``clm_ros`` importable).
+The records are written to bags by :mod:`clm_core.synthetic.writer`.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 from scipy.signal import resample_poly
 
 from clm_core.calibration.bagio import WheelLoadRecord
-from clm_core.calibration.channels import ChannelMap, ChannelSpec, parse_channel_map, unit_factor
+from clm_core.calibration.channels import ChannelSpec, unit_factor
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.passby import simulate_channels
 from clm_core.calibration.signals import Signal
@@ -56,11 +41,7 @@ from clm_core.soil.chain import chain_matrices
 from clm_core.track import assemble
 
 Array = NDArray[np.float64]
-Storage = Literal["mcap", "sqlite3"]
-Style = Literal["stamped", "float64", "block"]
 
-#: Bag time [ns] of t = 0 in synthetic bags.
-T0_NS = 1_700_000_000_000_000_000
 #: Where each SleeperResponse displacement field is measured.
 _FIELD_LOCATION = {"rail_deflection": "rail", "sleeper_displacement": "sleeper", "area_displacement": "soil"}
 
@@ -93,28 +74,6 @@ class SyntheticRecord:
     truth: Mapping[str, Any]
     settings: Mapping[str, Any]
     snr_db: float | None = None
-
-
-@dataclass(frozen=True)
-class SyntheticBag:
-    """A written synthetic bag.
-
-    Attributes
-    ----------
-    path : Path
-        rosbag2 directory.
-    channels : Path
-        Channel map (``channels.yaml`` in the bag directory).
-    truth : Path
-        Known values (``truth.yaml`` in the bag directory).
-    record : SyntheticRecord
-        What was written.
-    """
-
-    path: Path
-    channels: Path
-    truth: Path
-    record: SyntheticRecord
 
 
 def hammer_pulse(
@@ -474,265 +433,3 @@ def add_noise(rec: SyntheticRecord, snr_db: float, seed: int = 0, snr_window: fl
         settings=settings,
         snr_db=snr_db,
     )
-
-
-# ----------------------------------------------------------------------------- writing
-
-
-def _typestore(need_clm: bool) -> Any:
-    from rosbags.typesys import Stores, get_typestore
-
-    if not need_clm:
-        return get_typestore(Stores.ROS2_JAZZY)
-    try:
-        from clm_ros.msg_types import typestore
-    except ImportError:
-        raise CalibrationError(
-            "writing clm_msgs messages (pass-by bags) needs the clm_ros package importable "
-            "(ros2_ws/src/clm_ros on PYTHONPATH, or a sourced ROS workspace)"
-        ) from None
-    return typestore()
-
-
-def channel_map_for(rec: SyntheticRecord, style: Style = "stamped", block_size: int = 100) -> ChannelMap:
-    """The channel map describing a record written with :func:`write_bag`."""
-    def entry(s: ChannelSpec, with_loc: bool) -> dict[str, Any]:
-        e: dict[str, Any] = {"topic": s.topic, "units": s.units}
-        if s.name != s.topic:
-            e["name"] = s.name
-        if with_loc:
-            if s.location == "area":
-                e["area"] = s.index
-            else:
-                e["sleeper"] = s.index
-                e["location"] = s.location
-            e["quantity"] = s.quantity
-        if s.field:
-            e["field"] = s.field
-        if style == "block" and rec.method != "passby":
-            e["sample_rate"] = float(rec.settings["fs_hz"])
-        return e
-
-    data: dict[str, Any] = {"format": "clm-calibration-channels/1", "test": rec.method}
-    if rec.force is not None:
-        data["force"] = entry(rec.force.spec, False)
-    if rec.loads is not None:
-        data["loads"] = {"topic": "/clm/wheel_loads"}
-    data["channels"] = [entry(s.spec, True) for s in rec.responses]
-    return parse_channel_map(data, "<synthetic>")
-
-
-def write_bag(
-    rec: SyntheticRecord,
-    path: str | Path,
-    storage: Storage = "mcap",
-    style: Style = "stamped",
-    block_size: int = 100,
-    compress: bool = True,
-) -> SyntheticBag:
-    """Write a synthetic record as a rosbag2 bag with ``channels.yaml`` and ``truth.yaml``.
-
-    Parameters
-    ----------
-    rec : SyntheticRecord
-        What to write (values in SI units; written in each channel's unit).
-    path : path
-        New bag directory (must not exist).
-    storage : {'mcap', 'sqlite3'}
-        Storage plugin; mcap chunks are zstd-compressed when ``compress``.
-    style : {'stamped', 'float64', 'block'}
-        Message style of impact/receptance channels (module docstring).
-    block_size : int
-        Samples per ``Float64MultiArray`` block.
-    compress : bool
-        zstd chunk compression (mcap only).
-
-    Returns
-    -------
-    SyntheticBag
-    """
-    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
-
-    out = Path(path)
-    if out.exists():
-        raise CalibrationError(f"bag {str(out)!r} exists; choose a new path")
-    if storage not in ("mcap", "sqlite3"):
-        raise CalibrationError(f"storage = {storage!r}: must be 'mcap' or 'sqlite3'")
-    if style not in ("stamped", "float64", "block"):
-        raise CalibrationError(f"style = {style!r}: must be stamped, float64 or block")
-    ts = _typestore(rec.method == "passby")
-    T = ts.types
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    writer = Writer(out, version=9, storage_plugin=plugin)
-    if storage == "mcap" and compress:
-        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-    cmap = channel_map_for(rec, style, block_size)
-
-    def header(t_ns: int, frame: str) -> Any:
-        return T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000),
-            frame_id=frame,
-        )
-
-    with writer:
-        if rec.method == "passby":
-            _write_passby(writer, ts, rec, header)
-        else:
-            sigs = ([rec.force] if rec.force is not None else []) + list(rec.responses)
-            for sig in sigs:
-                _write_channel(writer, ts, sig, style, block_size, header)
-    (out / "channels.yaml").write_text(
-        "# Channel map of this bag (format: docs/calibration.md)\n" + yaml.safe_dump(cmap.to_dict(), sort_keys=False)
-    )
-    truth = {
-        "method": rec.method,
-        "generator": "clm_core.calibration.synthetic",
-        "truth": _plain(dict(rec.truth)),
-        "settings": _plain(dict(rec.settings)),
-        "storage": storage,
-        "style": style if rec.method != "passby" else "clm_msgs",
-    }
-    (out / "truth.yaml").write_text(
-        "# Known values this synthetic bag was generated from (SI units)\n" + yaml.safe_dump(truth, sort_keys=False)
-    )
-    return SyntheticBag(out, out / "channels.yaml", out / "truth.yaml", rec)
-
-
-def _plain(o: Any) -> Any:
-    if isinstance(o, dict):
-        return {str(k): _plain(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_plain(v) for v in o]
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return o
-
-
-def _write_channel(writer: Any, ts: Any, sig: Signal, style: str, block_size: int, header: Any) -> None:
-    T = ts.types
-    spec = sig.spec
-    raw = sig.values / spec.factor  # SI -> recorded unit
-    stamps = T0_NS + np.round(sig.t * 1e9).astype(np.int64)
-    frame = spec.topic.strip("/").replace("/", "_")
-    if style == "stamped":
-        if spec.quantity == "force":
-            mt = "geometry_msgs/msg/WrenchStamped"
-            conn = writer.add_connection(spec.topic, mt, typestore=ts)
-            V3, W = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Wrench"]
-            zero = V3(x=0.0, y=0.0, z=0.0)
-            for st, v in zip(stamps.tolist(), raw.tolist()):
-                msg = T[mt](header=header(st, frame), wrench=W(force=V3(x=0.0, y=0.0, z=v), torque=zero))
-                writer.write(conn, st + 150_000, ts.serialize_cdr(msg, mt))
-        else:
-            mt = "geometry_msgs/msg/Vector3Stamped"
-            conn = writer.add_connection(spec.topic, mt, typestore=ts)
-            V3 = T["geometry_msgs/msg/Vector3"]
-            for st, v in zip(stamps.tolist(), raw.tolist()):
-                msg = T[mt](header=header(st, frame), vector=V3(x=0.0, y=0.0, z=v))
-                writer.write(conn, st + 150_000, ts.serialize_cdr(msg, mt))
-    elif style == "float64":
-        mt = "std_msgs/msg/Float64"
-        conn = writer.add_connection(spec.topic, mt, typestore=ts)
-        for st, v in zip(stamps.tolist(), raw.tolist()):
-            writer.write(conn, st, ts.serialize_cdr(T[mt](data=v), mt))
-    else:
-        mt = "std_msgs/msg/Float64MultiArray"
-        conn = writer.add_connection(spec.topic, mt, typestore=ts)
-        lay = T["std_msgs/msg/MultiArrayLayout"]
-        dim = T["std_msgs/msg/MultiArrayDimension"]
-        for i in range(0, raw.size, block_size):
-            blk = raw[i : i + block_size]
-            msg = T[mt](layout=lay(dim=[dim(label="samples", size=blk.size, stride=blk.size)], data_offset=0),
-                        data=np.ascontiguousarray(blk, dtype=np.float64))
-            writer.write(conn, int(stamps[i]), ts.serialize_cdr(msg, mt))
-
-
-def _write_passby(writer: Any, ts: Any, rec: SyntheticRecord, header: Any) -> None:
-    T = ts.types
-    assert rec.loads is not None
-    L = rec.loads
-    mt_w = "clm_msgs/msg/WheelLoads"
-    mt_s = "clm_msgs/msg/SleeperResponse"
-    cw = writer.add_connection("/clm/wheel_loads", mt_w, typestore=ts)
-    cs = writer.add_connection("/clm/sleeper_response", mt_s, typestore=ts)
-    WL = T["clm_msgs/msg/WheelLoad"]
-    speed = float(rec.settings.get("speed_m_per_s", math.nan))
-    for k in range(L.t.size):
-        st = T0_NS + int(round(L.t[k] * 1e9))
-        wheels = [
-            WL(id=int(w), position=float(L.positions[k, i]), force=float(L.forces[k, i]), speed=speed)
-            for i, w in enumerate(L.wheel_ids)
-            if np.isfinite(L.positions[k, i])
-        ]
-        writer.write(cw, st, ts.serialize_cdr(T[mt_w](header=header(st, "line"), wheels=wheels), mt_w))
-    sleepers = sorted({s.spec.index for s in rec.responses})
-    fields = ("rail_deflection", "sleeper_displacement", "area_displacement", "soil_force")
-    t = rec.responses[0].t
-    vals = {f: np.full((t.size, len(sleepers)), np.nan) for f in fields}
-    for s in rec.responses:
-        vals[s.spec.field or "rail_deflection"][:, sleepers.index(s.spec.index)] = s.values / s.spec.factor
-    idx = np.asarray(sleepers, dtype=np.int64)
-    pos = idx * float(rec.truth["track"]["spacing"])
-    for k in range(t.size):
-        st = T0_NS + int(round(t[k] * 1e9))
-        msg = T[mt_s](
-            header=header(st, "line"),
-            sleeper_index=idx,
-            position=pos,
-            **{f: np.ascontiguousarray(vals[f][k]) for f in fields},
-        )
-        writer.write(cs, st + 150_000, ts.serialize_cdr(msg, mt_s))
-
-
-def write_impact_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    style: Style = "stamped",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a soil impact test (:func:`simulate_impact`), add noise, write the bag.
-
-    ``snr_db=None`` writes the noise-free record. Other keywords go to
-    :func:`simulate_impact` (``soil``, ``n_areas``, ``measured``, ``quantity``,
-    ``fs``, ``duration``, ``hit_times``, ``pulse``, ...).
-    """
-    rec = simulate_impact(**simulate)
-    if snr_db is not None:
-        rec = add_noise(rec, snr_db, seed)
-    return write_bag(rec, path, storage=storage, style=style)
-
-
-def write_receptance_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    style: Style = "stamped",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a rail receptance test (:func:`simulate_receptance`), add noise, write the bag."""
-    rec = simulate_receptance(**simulate)
-    if snr_db is not None:
-        rec = add_noise(rec, snr_db, seed)
-    return write_bag(rec, path, storage=storage, style=style)
-
-
-def write_passby_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a pass-by (:func:`simulate_passby`), add noise, write the bag (clm_msgs types)."""
-    rec = simulate_passby(**simulate)
-    if snr_db is not None:
-        rec = add_noise(rec, snr_db, seed)
-    return write_bag(rec, path, storage=storage)

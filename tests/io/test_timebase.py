@@ -1,0 +1,69 @@
+"""clm_core.io.timebase: integer nanoseconds and ROS stamps."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from clm_core.io.errors import MessageError
+from clm_core.io.timebase import (
+    INT32_MAX,
+    INT32_MIN,
+    NS,
+    ns_to_seconds,
+    ns_to_stamp,
+    seconds_to_ns,
+    seconds_to_ns_array,
+    stamp_ns,
+    stamp_to_ns,
+)
+
+T_NS = st.integers(INT32_MIN * NS, INT32_MAX * NS + NS - 1)
+
+
+@given(T_NS)
+def test_stamp_round_trip(t_ns: int) -> None:
+    sec, nanosec = ns_to_stamp(t_ns)
+    assert 0 <= nanosec < NS and INT32_MIN <= sec <= INT32_MAX
+    assert stamp_to_ns(sec, nanosec) == t_ns
+    header = SimpleNamespace(stamp=SimpleNamespace(sec=sec, nanosec=nanosec))
+    assert stamp_ns(header) == stamp_ns(header, check=True) == t_ns
+
+
+def test_negative_times_follow_the_ros_convention() -> None:
+    assert ns_to_stamp(-1_700_000_000) == (-2, 300_000_000)  # -1.7 s
+    assert ns_to_stamp(-1) == (-1, NS - 1)
+
+
+def test_out_of_range_stamps_are_refused() -> None:
+    with pytest.raises(MessageError, match=r"nanosec = 1000000000: must be in \[0, 1e9\)"):
+        stamp_to_ns(1, NS)
+    with pytest.raises(MessageError, match="int32"):
+        stamp_to_ns(2**31, 0)
+    with pytest.raises(MessageError, match="int32"):
+        ns_to_stamp((INT32_MAX + 1) * NS)
+    # without the check the arithmetic is kept as sent (what rclpy hands over)
+    assert stamp_to_ns(1, 1_500_000_000, check=False) == 2_500_000_000
+    header = SimpleNamespace(stamp=SimpleNamespace(sec=0, nanosec=NS))
+    assert stamp_ns(header) == NS
+    with pytest.raises(MessageError):
+        stamp_ns(header, check=True)
+
+
+def test_seconds() -> None:
+    assert seconds_to_ns(1e-3) == 1_000_000
+    assert seconds_to_ns(1_700_000_000.000123) == 1_700_000_000_000_123_136  # float resolution, not more
+    k = np.arange(10_000)
+    np.testing.assert_array_equal(seconds_to_ns_array(k * 1e-4), k * 100_000)  # every 0.1 ms step exact
+    assert ns_to_seconds(1_500_000) == 1.5e-3
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(MessageError, match="finite"):
+            seconds_to_ns(bad)
+        with pytest.raises(MessageError, match="finite"):
+            seconds_to_ns_array([0.0, bad])
+    with pytest.raises(MessageError):
+        seconds_to_ns_array([1e10])
