@@ -12,13 +12,21 @@ The pieces, all O(n) per call for a banded system of n DOFs:
   the load-free step increment, the pieces of the compiled vehicle coupling
   (:mod:`clm_core.vehicle._coupled_kernel`).
 - :func:`run_steps`: many steps of Newmark average acceleration in the
-  increment form (see :mod:`clm_core.stepper`)::
+  increment form (see :mod:`clm_core.solver`)::
 
       K_eff du = f_{n+1} + f_n - 2 K u_n + (4/dt) M v_n,
       u_{n+1} = u_n + du,   v_{n+1} = (2/dt) du - v_n,
 
   with K_eff = K + (2/dt) C + (4/dt^2) M; the right-hand side is one sparse
   (CSR) pass over the union pattern of K and M.
+
+The inputs of :func:`run_steps` travel in one typed structure,
+:class:`StepArgs`, made of named tuples of arrays (numba types them as
+named tuples; attribute access compiles to a field load): the operator of
+the window (:class:`StepOperator`, built once per operator), the state
+(:class:`StepState`, arrays updated in place), the loads of the steps
+(:class:`StepLoads`) and the output buffers (:class:`StepOutputs`). All
+arrays are C-contiguous, float64 or int64.
 
 The kernels are compiled with ``cache=True`` (the first call in a fresh
 environment compiles, later processes load the cache).
@@ -27,9 +35,158 @@ environment compiles, later processes load the cache).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+class StepOperator(NamedTuple):
+    """Position-independent operator of one window configuration (n DOFs, N sleepers).
+
+    Attributes
+    ----------
+    indptr, indices : (n + 1,), (nnz,) int arrays
+        CSR pattern of the union of the patterns of K and M.
+    Ka, Mb : (nnz,) arrays
+        -2 K [N/m] and (4/dt) M [kg/s] on that pattern.
+    first, ptr, L, D : int, int, float, float arrays
+        Envelope LDL^T factor of K_eff = K + (2/dt) C + (4/dt^2) M
+        (:func:`ldlt_envelope`); D the pivots [N/m].
+    Dinv : (n,) array
+        1 / D [m/N].
+    a1 : float
+        2 / dt [1/s].
+    s_dof, a_dof, r_dof : (N,) int arrays
+        Sleeper, contact-area (-1: rigid soil) and rail-above-sleeper DOFs.
+    kb, db : (N,) arrays
+        Ballast stiffness [N/m] and damping [N s/m] under each sleeper.
+    """
+
+    indptr: IntArray
+    indices: IntArray
+    Ka: Array
+    Mb: Array
+    first: IntArray
+    ptr: IntArray
+    L: Array
+    D: Array
+    Dinv: Array
+    a1: float
+    s_dof: IntArray
+    a_dof: IntArray
+    r_dof: IntArray
+    kb: Array
+    db: Array
+
+
+class StepState(NamedTuple):
+    """State of the window and work arrays, updated in place (n DOFs, N sleepers).
+
+    Attributes
+    ----------
+    u, v : (n,) arrays
+        Displacement [m] and velocity [m/s].
+    z, y : (n,) arrays
+        Work arrays; ``z`` is zero on entry and on exit of every kernel.
+    prev_dofs, prev_vals : (q,) int array, (q,) array
+        The load vector f_n at the start, as (DOF, value [N]) pairs.
+    pk_force, pk_rail : (N,) arrays
+        Running maxima of the soil force [N] and of the rail deflection above
+        the sleepers [m], updated every step.
+    """
+
+    u: Array
+    v: Array
+    z: Array
+    y: Array
+    prev_dofs: IntArray
+    prev_vals: Array
+    pk_force: Array
+    pk_rail: Array
+
+
+class StepLoads(NamedTuple):
+    """Wheel loads of S consecutive steps (W wheels).
+
+    Attributes
+    ----------
+    ldofs : (S, 4 W) int array
+        DOFs of each wheel's rail element at every step (0 for an absent wheel).
+    lw : (S, 4 W) array
+        Hermite weights (0 for an absent wheel).
+    F : (S, W) array
+        Wheel forces [N] at t_{n+1} of each step (0 for an absent wheel).
+    """
+
+    ldofs: IntArray
+    lw: Array
+    F: Array
+
+
+class StepOutputs(NamedTuple):
+    """Output buffers of S steps (W wheels, N sleepers, K output steps).
+
+    Attributes
+    ----------
+    wdefl, wvel : (S, W) arrays
+        Rail deflection [m] and velocity [m/s] under each wheel, every step.
+    steps : (K,) int array
+        Increasing step indices (0 .. S - 1) at which the sleeper fields are
+        recorded (empty: none).
+    force, rail, sleeper, area : (K, N) arrays
+        Soil force [N], rail deflection above the sleeper, sleeper and
+        contact-area displacement [m] at the output steps.
+    """
+
+    wdefl: Array
+    wvel: Array
+    steps: IntArray
+    force: Array
+    rail: Array
+    sleeper: Array
+    area: Array
+
+
+class StepArgs(NamedTuple):
+    """Everything :func:`run_steps` reads and writes, in one typed structure."""
+
+    op: StepOperator
+    state: StepState
+    loads: StepLoads
+    out: StepOutputs
+
+
+class CoupledTrack(NamedTuple):
+    """Track inputs of the compiled coupled steps for m steps (W wheels, n DOFs).
+
+    Returned by :meth:`clm_core.solver.TrackSimulator.coupled_chunk`; its
+    fields are the leading arguments of
+    :func:`clm_core.vehicle._coupled_kernel.coupled_steps`.
+
+    Attributes
+    ----------
+    op : StepOperator
+        The window's operator.
+    state : StepState
+        The track state (updated in place; ``y`` is the work array of the
+        free response).
+    ldofs, lw : (m, 4 W) int array, (m, 4 W) array
+        DOFs and Hermite weights of the wheels at every step.
+    cols, slot : (capacity, n) array, (n,) int array
+        Columns ``cols[slot[d]] = K_eff^-1 e_d`` [m/N] of every DOF in ``ldofs``.
+    """
+
+    op: StepOperator
+    state: StepState
+    ldofs: IntArray
+    lw: Array
+    cols: Array
+    slot: IntArray
 
 
 @njit(cache=True)
@@ -99,47 +256,35 @@ def free_rhs(indptr, indices, Ka, Mb, u, v, prev_dofs, prev_vals, rhs):  # type:
 
 
 @njit(cache=True)
-def run_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    indptr, indices, Ka, Mb, first, ptr, L, Dinv, a1,
-    u, v, z, y, prev_dofs, prev_vals,
-    ldofs, lw, F,
-    s_dof, a_dof, r_dof, kb, db,
-    wdefl, wvel,
-    out_every, out_phase, out_force, out_rail, out_sleeper, out_area,
-    pk_force, pk_rail,
-):
-    """Advance ``F.shape[0]`` steps in place.
+def run_steps(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Advance ``a.loads.F.shape[0]`` steps in place; return the number of output rows written.
 
-    Parameters (all arrays contiguous)
-    ----------------------------------
-    indptr, indices, Ka, Mb : CSR of -2 K and (4/dt) M on the union pattern.
-    first, ptr, L, Dinv : envelope LDL^T factor of K_eff (Dinv = 1 / D).
-    a1 : 2 / dt [1/s].
-    u, v : state [m], [m/s] (n,), updated.
-    z, y : work arrays (n,); z must be zero on entry and is zero on exit.
-    prev_dofs, prev_vals : load vector f_n at the start, as (DOF, value [N]) pairs.
-    ldofs : (S, 4 W) int DOFs of each wheel's element at every step.
-    lw : (S, 4 W) Hermite weights (0 for an absent wheel).
-    F : (S, W) wheel forces [N] at t_{n+1} of each step (0 for an absent wheel).
-    s_dof, a_dof, r_dof : (N,) sleeper, contact-area (-1: rigid) and rail-above-sleeper DOFs.
-    kb, db : (N,) ballast stiffness [N/m] and damping [N s/m].
-    wdefl, wvel : (S, W) outputs: rail deflection [m] and velocity [m/s] under each wheel.
-    out_every, out_phase : step s is an output step when (s + out_phase) % out_every == 0
-        (out_every = 0: no sleeper outputs).
-    out_force, out_rail, out_sleeper, out_area : (K, N) sleeper outputs at output steps.
-    pk_force, pk_rail : (N,) running maxima of the soil force [N] and rail
-        deflection above the sleepers [m], updated every step.
+    Parameters
+    ----------
+    a : StepArgs
+        Operator, state (updated), loads and output buffers (filled); see
+        :class:`StepOperator`, :class:`StepState`, :class:`StepLoads`,
+        :class:`StepOutputs`.
     """
+    op, st, ld, out = a.op, a.state, a.loads, a.out
+    indptr, indices, Ka, Mb = op.indptr, op.indices, op.Ka, op.Mb
+    first, ptr, L, Dinv, a1 = op.first, op.ptr, op.L, op.Dinv, op.a1
+    s_dof, a_dof, r_dof, kb, db = op.s_dof, op.a_dof, op.r_dof, op.kb, op.db
+    u, v, z, y = st.u, st.v, st.z, st.y
+    pk_force, pk_rail = st.pk_force, st.pk_rail
+    ldofs, lw, F = ld.ldofs, ld.lw, ld.F
+    out_steps = out.steps
     n = u.shape[0]
     S = F.shape[0]
     W = F.shape[1]
     N = s_dof.shape[0]
+    n_out = out_steps.shape[0]
     kout = 0
     for s in range(S):
         # loads f_n + f_{n+1} scattered into z (zero on entry)
         if s == 0:
-            for q in range(prev_dofs.shape[0]):
-                z[prev_dofs[q]] += prev_vals[q]
+            for q in range(st.prev_dofs.shape[0]):
+                z[st.prev_dofs[q]] += st.prev_vals[q]
         else:
             for w in range(W):
                 fw = F[s - 1, w]
@@ -180,10 +325,10 @@ def run_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
                 wt = lw[s, 4 * w + c]
                 sw += wt * u[dof]
                 sv += wt * v[dof]
-            wdefl[s, w] = sw
-            wvel[s, w] = sv
+            out.wdefl[s, w] = sw
+            out.wvel[s, w] = sv
         # sleeper peaks every step, fields at output steps
-        record = out_every > 0 and (s + out_phase) % out_every == 0
+        record = kout < n_out and out_steps[kout] == s
         for i in range(N):
             sd = s_dof[i]
             ad = a_dof[i]
@@ -202,10 +347,10 @@ def run_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
             if rw > pk_rail[i]:
                 pk_rail[i] = rw
             if record:
-                out_force[kout, i] = fs
-                out_rail[kout, i] = rw
-                out_sleeper[kout, i] = u[sd]
-                out_area[kout, i] = xa
+                out.force[kout, i] = fs
+                out.rail[kout, i] = rw
+                out.sleeper[kout, i] = u[sd]
+                out.area[kout, i] = xa
         if record:
             kout += 1
     return kout
@@ -224,13 +369,15 @@ def unit_columns(first, ptr, L, D, dofs, cols, rows):  # type: ignore[no-untyped
 
 
 @njit(cache=True)
-def free_response(indptr, indices, Ka, Mb, first, ptr, L, Dinv, u, v, z, x):  # type: ignore[no-untyped-def]  # pragma: no cover
+def free_response(op, u, v, z, x):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """x = K_eff^-1 (-2 K u + (4/dt) M v + z): the step increment with no new load (f_{n+1} = 0).
 
-    ``z`` holds the loads f_n scattered on the DOFs on entry and is zero on
-    exit (the fused right-hand side / forward substitution of
-    :func:`run_steps`).
+    ``op`` is the window's :class:`StepOperator`; ``z`` holds the loads f_n
+    scattered on the DOFs on entry and is zero on exit (the fused right-hand
+    side / forward substitution of :func:`run_steps`).
     """
+    indptr, indices, Ka, Mb = op.indptr, op.indices, op.Ka, op.Mb
+    first, ptr, L, Dinv = op.first, op.ptr, op.L, op.Dinv
     n = u.shape[0]
     for i in range(n):
         acc = z[i]
@@ -254,37 +401,37 @@ def free_response(indptr, indices, Ka, Mb, first, ptr, L, Dinv, u, v, z, x):  # 
 
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel on a tiny system."""
-    hermite_weights(np.array([[0.3, np.nan]]), 0.0, 1.0, 2, np.array([0, 2, 4], dtype=np.int64),
-                    np.array([1, 3, 5], dtype=np.int64))
-    first = np.array([0, 0], dtype=np.int64)
-    ptr = np.array([0, 0, 1], dtype=np.int64)
+    i64 = np.int64
+    hermite_weights(np.array([[0.3, np.nan]]), 0.0, 1.0, 2, np.array([0, 2, 4], dtype=i64),
+                    np.array([1, 3, 5], dtype=i64))
+    first = np.array([0, 0], dtype=i64)
+    ptr = np.array([0, 0, 1], dtype=i64)
     L = np.array([0.5])
     D = np.array([2.0, 2.0])
     ldlt_envelope(first, ptr, L, D)
     x = np.ones(2)
     solve_envelope(first, ptr, L, D, x)
-    indptr = np.array([0, 1, 2], dtype=np.int64)
-    indices = np.array([0, 1], dtype=np.int64)
+    indptr = np.array([0, 1, 2], dtype=i64)
+    indices = np.array([0, 1], dtype=i64)
     Ka = np.array([-1.0, -1.0])
     Mb = np.array([1.0, 1.0])
     u = np.zeros(2)
     v = np.zeros(2)
     rhs = np.zeros(2)
-    pd = np.zeros(4, dtype=np.int64)
+    pd = np.zeros(4, dtype=i64)
     pv = np.zeros(4)
     free_rhs(indptr, indices, Ka, Mb, u, v, pd, pv, rhs)
-    ld = np.zeros((1, 4), dtype=np.int64)
-    lw = np.zeros((1, 4))
-    F = np.zeros((1, 1))
-    sd = np.array([0], dtype=np.int64)
-    ad = np.array([-1], dtype=np.int64)
+    sd = np.array([0], dtype=i64)
+    ad = np.array([-1], dtype=i64)
     kb = np.ones(1)
+    op = StepOperator(indptr, indices, Ka, Mb, first, ptr, L, D, 1.0 / D, 1.0, sd, ad, sd, kb, kb.copy())
+    state = StepState(u, v, np.zeros(2), rhs, pd, pv, np.zeros(1), np.zeros(1))
+    loads = StepLoads(np.zeros((1, 4), dtype=i64), np.zeros((1, 4)), np.zeros((1, 1)))
     o = np.zeros((1, 1))
-    run_steps(indptr, indices, Ka, Mb, first, ptr, L, 1.0 / D, 1.0, u, v, np.zeros(2), rhs, pd, pv, ld, lw, F,
-              sd, ad, sd, kb, kb, o.copy(), o.copy(), 1, 0, o.copy(), o.copy(), o.copy(), o.copy(),
-              np.zeros(1), np.zeros(1))
-    unit_columns(first, ptr, L, D, np.array([1], dtype=np.int64), np.zeros((1, 2)), np.zeros(1, dtype=np.int64))
-    free_response(indptr, indices, Ka, Mb, first, ptr, L, 1.0 / D, u, v, np.zeros(2), rhs)
+    out = StepOutputs(o.copy(), o.copy(), np.zeros(1, dtype=i64), o.copy(), o.copy(), o.copy(), o.copy())
+    run_steps(StepArgs(op, state, loads, out))
+    unit_columns(first, ptr, L, D, np.array([1], dtype=i64), np.zeros((1, 2)), np.zeros(1, dtype=i64))
+    free_response(op, u, v, np.zeros(2), rhs)
 
 
 @njit(cache=True)
