@@ -76,9 +76,10 @@ Layout of the package (the simulator is made of collaborator objects it holds):
 =====================  =========================================================
 module                 contents
 =====================  =========================================================
-``simulator``          :class:`TrackSimulator` (state, initialize, step/advance,
-                       two-phase and compiled coupled steps, outputs),
-                       :class:`SimulatorState`
+``simulator``          :class:`TrackSimulator` (initialize, step/advance,
+                       two-phase and compiled coupled steps, outputs)
+``state``              :class:`SimulatorState` (what a refused call restores),
+                       :class:`PendingStep`
 ``window``             :class:`Window` (placement and shift rules),
                        :class:`Placement`
 ``operators``          :class:`OperatorCache` (assembly and factorisation keyed
@@ -99,7 +100,8 @@ from __future__ import annotations
 from clm_core.solver.loads import LoadFunction, Loads, LoadTable
 from clm_core.solver.operators import DofLayout, Operator, OperatorCache
 from clm_core.solver.records import Block, Snapshot
-from clm_core.solver.simulator import CHUNK_STEPS, PendingStep, SimulatorState, TrackSimulator
+from clm_core.solver.simulator import CHUNK_STEPS, TrackSimulator
+from clm_core.solver.state import PendingStep, SimulatorState
 from clm_core.solver.window import Orientation, Placement, Window
 
 __all__ = [

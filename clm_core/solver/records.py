@@ -66,7 +66,7 @@ class Snapshot:
 class Block:
     """Outputs of consecutive steps with the window in one position.
 
-    Emitted by :meth:`TrackSimulator.advance` to its ``callback``; the arrays
+    Emitted by :meth:`clm_core.solver.TrackSimulator.advance` to its ``callback``; the arrays
     are fresh (the callback may keep them). ``k`` output instants, ``N``
     sleepers, ``W`` wheels.
 
@@ -84,7 +84,8 @@ class Block:
         As in :class:`Snapshot` [m], [N], [m], [m/s].
     peak_soil_force, peak_rail_deflection : (N,) arrays
         Running maxima over every step (not only output steps) since the
-        sleeper entered the window or since :meth:`TrackSimulator.reset_peaks`,
+        sleeper entered the window or since
+        :meth:`clm_core.solver.TrackSimulator.reset_peaks`,
         up to the end of the block [N], [m]. The block emitted just before a
         window shift holds the final values of the sleepers being dropped.
     peak_wheel_deflection : (W,) array
@@ -111,6 +112,23 @@ class Block:
     def sleeper_index(self) -> IntArray:
         """Global sleeper indices of the columns."""
         return np.arange(self.first_sleeper, self.first_sleeper + len(self.sleeper_x), dtype=np.int64)
+
+    @classmethod
+    def of_snapshot(
+        cls, snap: Snapshot, first_sleeper: int, peak_soil_force: Array, peak_rail_deflection: Array
+    ) -> Block:
+        """A one-row block of a snapshot, with the running peaks [N], [m] of its window (copied)."""
+        W = snap.wheel_positions.size
+        return cls(
+            first_sleeper=first_sleeper, sleeper_x=snap.sleeper_x, t=np.array([snap.t]),
+            soil_force=snap.soil_force[None, :], rail_deflection=snap.rail_deflection[None, :],
+            sleeper_displacement=snap.sleeper_displacement[None, :],
+            area_displacement=snap.area_displacement[None, :],
+            wheel_positions=snap.wheel_positions.reshape(1, W), wheel_forces=snap.wheel_forces.reshape(1, W),
+            wheel_deflection=snap.wheel_deflection.reshape(1, W), wheel_velocity=snap.wheel_velocity.reshape(1, W),
+            peak_soil_force=peak_soil_force.copy(), peak_rail_deflection=peak_rail_deflection.copy(),
+            peak_wheel_deflection=np.where(np.isfinite(snap.wheel_deflection), snap.wheel_deflection, -np.inf),
+        )
 
 
 __all__ = ["Block", "Snapshot"]

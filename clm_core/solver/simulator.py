@@ -11,8 +11,9 @@ It holds, and delegates to:
   values) and the window's :class:`~clm_core.solver.operators.DofLayout`;
 - the per-sleeper values of the line (:class:`clm_core.track.SleeperValues`,
   the one place where overrides are applied);
-- its :class:`SimulatorState`: everything that changes while it runs, copied
-  before each call and restored when the call is refused.
+- its :class:`~clm_core.solver.state.SimulatorState`: everything that
+  changes while it runs, copied before each call and restored when the call
+  is refused.
 
 The compiled steps (:func:`clm_core.solver._kernels.run_steps`) get the
 operator, the state, the loads and the output buffers in one typed
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -37,6 +38,7 @@ from clm_core.solver import _kernels as kern
 from clm_core.solver.loads import Loads, check_values, load_entries, load_source, load_weights, wheel_arrays
 from clm_core.solver.operators import Operator, OperatorCache
 from clm_core.solver.records import Block, Snapshot
+from clm_core.solver.state import PendingStep, SimulatorState
 from clm_core.solver.window import Placement, Window, shift_bays, shift_entries
 from clm_core.track import SleeperValues, TrackSystem, check_overridden_stretches
 
@@ -46,84 +48,6 @@ IntArray = NDArray[np.int64]
 #: Steps per kernel call at most (bounds the per-call work arrays: flat memory).
 CHUNK_STEPS = 2048
 _TOL = 1e-9
-
-
-@dataclass(frozen=True)
-class PendingStep:
-    """A step begun by :meth:`TrackSimulator.begin_step`, waiting for its wheel forces.
-
-    Attributes
-    ----------
-    positions : (n_w,) array
-        Wheel positions at t + dt [m].
-    x0 : (n,) array
-        Step increment with zero wheel forces at t + dt [m].
-    dofs, weights : (4 n_w,) int array, (4 n_w,) array
-        Wheel element DOFs and Hermite weights.
-    Gc : (n, n_w) array
-        K_eff^-1 applied to each wheel's load pattern [m/N].
-    Wm : (n_w, n) array
-        Interpolation of the rail deflection under each wheel.
-    k : int
-        Step count when the step was begun (a later step invalidates it).
-    """
-
-    positions: Array
-    x0: Array
-    dofs: IntArray
-    weights: Array
-    Gc: Array
-    Wm: Array
-    k: int
-
-
-@dataclass
-class SimulatorState:
-    """Everything that changes while a :class:`TrackSimulator` runs (what a refused call restores).
-
-    Attributes
-    ----------
-    placement : Placement
-        Where the window is.
-    op : Operator
-        The operator of that placement.
-    u, v : (n,) arrays
-        Displacement [m] and velocity [m/s] of the window's DOFs.
-    t0 : float
-        Time of the last :meth:`TrackSimulator.initialize` [s].
-    k : int
-        Steps since then (time ``t0 + k dt``).
-    prev_dofs, prev_vals : int array, array
-        The load vector at the current time as (DOF, value [N]) pairs.
-    pos, F : (n_w,) arrays
-        Wheel positions [m] (NaN: absent) and forces [N] at the current time.
-    pk_force, pk_rail : (N,) arrays
-        Running maxima of the soil force [N] and rail deflection [m] per sleeper.
-    pending : PendingStep or None
-        The step begun by :meth:`TrackSimulator.begin_step`.
-    """
-
-    placement: Placement
-    op: Operator
-    u: Array
-    v: Array
-    t0: float
-    k: int
-    prev_dofs: IntArray
-    prev_vals: Array
-    pos: Array
-    F: Array
-    pk_force: Array
-    pk_rail: Array
-    pending: PendingStep | None = None
-
-    def copy(self) -> SimulatorState:
-        """A copy whose arrays are independent of this state's (the operator and pending step are shared)."""
-        return replace(
-            self, u=self.u.copy(), v=self.v.copy(), prev_dofs=self.prev_dofs.copy(),
-            prev_vals=self.prev_vals.copy(), pos=self.pos.copy(), F=self.F.copy(),
-            pk_force=self.pk_force.copy(), pk_rail=self.pk_rail.copy(),
-        )
 
 
 @dataclass(frozen=True)
@@ -756,23 +680,12 @@ class TrackSimulator:
 
     def block(self) -> Block:
         """The current state as a one-row :class:`Block` (e.g. the initial row of a recorded history)."""
-        snap = self.snapshot()
-        W = snap.wheel_positions.size
         s = self._s
-        return Block(
-            first_sleeper=s.placement.first, sleeper_x=snap.sleeper_x, t=np.array([snap.t]),
-            soil_force=snap.soil_force[None, :], rail_deflection=snap.rail_deflection[None, :],
-            sleeper_displacement=snap.sleeper_displacement[None, :],
-            area_displacement=snap.area_displacement[None, :],
-            wheel_positions=snap.wheel_positions.reshape(1, W), wheel_forces=snap.wheel_forces.reshape(1, W),
-            wheel_deflection=snap.wheel_deflection.reshape(1, W), wheel_velocity=snap.wheel_velocity.reshape(1, W),
-            peak_soil_force=s.pk_force.copy(), peak_rail_deflection=s.pk_rail.copy(),
-            peak_wheel_deflection=np.where(np.isfinite(snap.wheel_deflection), snap.wheel_deflection, -np.inf),
-        )
+        return Block.of_snapshot(self.snapshot(), s.placement.first, s.pk_force, s.pk_rail)
 
     def state_vectors(self) -> tuple[Array, Array]:
         """Copies of the window's displacement [m] and velocity [m/s] vectors (DOF order of :attr:`system`)."""
         return self._s.u.copy(), self._s.v.copy()
 
 
-__all__ = ["CHUNK_STEPS", "PendingStep", "SimulatorState", "TrackSimulator"]
+__all__ = ["CHUNK_STEPS", "TrackSimulator"]
