@@ -290,7 +290,18 @@ def load_entries(layout: DofLayout, first: int, P: Array, F: Array) -> tuple[Int
 
 
 def check_values(P: Array, F: Array, t: Array, what: str) -> None:
-    """Refuse NaN/inf forces on present wheels, infinite positions, forces on absent wheels."""
+    """Refuse NaN/inf forces on present wheels, infinite positions, forces on absent wheels.
+
+    ``P``, ``F``: (S, W) positions [m] and forces [N] at the times ``t`` (S,)
+    [s]; ``what`` names the calling method in the message.
+
+    Raises
+    ------
+    InputError
+        Names the wheel, the time and the rule.
+    """
+    if math.isfinite(float(P.sum()) + float(F.sum())):
+        return  # every value finite (a NaN or inf would make the sum non-finite): nothing to refuse
     if np.any(np.isinf(P)):
         r, c = np.argwhere(np.isinf(P))[0]
         raise InputError(

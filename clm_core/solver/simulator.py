@@ -141,6 +141,7 @@ class TrackSimulator:
             pk_force=np.zeros(N), pk_rail=np.zeros(N),
         )
         self._chunk: _Chunk | None = None
+        self._no_output = (np.zeros(0, dtype=np.int64), np.empty((0, N)))  # output buffers without a callback
 
     # ------------------------------------------------------------------ properties
 
@@ -447,10 +448,11 @@ class TrackSimulator:
         if callback is not None:
             phase = (st.k + 1) % every
             sel = np.arange((every - phase) % every, S, every, dtype=np.int64)
+            out = kern.StepOutputs(np.empty((S, W)), np.empty((S, W)), sel, np.empty((sel.size, N)),
+                                   np.empty((sel.size, N)), np.empty((sel.size, N)), np.empty((sel.size, N)))
         else:
-            sel = np.zeros(0, dtype=np.int64)
-        out = kern.StepOutputs(np.empty((S, W)), np.empty((S, W)), sel,
-                               *(np.empty((sel.size, N)) for _ in range(4)))
+            sel, none = self._no_output  # nothing recorded: the kernel writes no sleeper rows
+            out = kern.StepOutputs(np.empty((S, W)), np.empty((S, W)), sel, none, none, none, none)
         kout = kern.run_steps(kern.StepArgs(st.op.kernel, self._step_state(), kern.StepLoads(ldofs, lw, F), out))
         assert kout == sel.size
         k0 = st.k

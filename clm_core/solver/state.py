@@ -11,7 +11,7 @@ two-phase step (:meth:`~clm_core.solver.TrackSimulator.begin_step`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -94,10 +94,10 @@ class SimulatorState:
 
     def copy(self) -> SimulatorState:
         """A copy whose arrays are independent of this state's (the operator and pending step are shared)."""
-        return replace(
-            self, u=self.u.copy(), v=self.v.copy(), prev_dofs=self.prev_dofs.copy(),
-            prev_vals=self.prev_vals.copy(), pos=self.pos.copy(), F=self.F.copy(),
-            pk_force=self.pk_force.copy(), pk_rail=self.pk_rail.copy(),
+        return SimulatorState(
+            self.placement, self.op, self.u.copy(), self.v.copy(), self.t0, self.k, self.prev_dofs.copy(),
+            self.prev_vals.copy(), self.pos.copy(), self.F.copy(), self.pk_force.copy(), self.pk_rail.copy(),
+            self.pending,
         )
 
 
