@@ -156,6 +156,8 @@ class SleeperValues:
 
     def touches(self, first: int, count: int) -> bool:
         """Whether any of the sleepers ``first .. first + count - 1`` is overridden."""
+        if not self.touched.size:
+            return False
         i = int(np.searchsorted(self.touched, first))
         return i < self.touched.size and int(self.touched[i]) < first + count
 
