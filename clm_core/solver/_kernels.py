@@ -255,6 +255,30 @@ def free_rhs(indptr, indices, Ka, Mb, u, v, prev_dofs, prev_vals, rhs):  # type:
         rhs[prev_dofs[q]] += prev_vals[q]
 
 
+@njit(cache=True, inline="always")
+def _rhs_forward(op, u, v, z, y):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Fused right-hand side and forward substitution of a step, in place (inlined into its callers).
+
+    Row by row: ``z[i] <- z[i] - 2 (K u)_i + (4/dt) (M v)_i - sum_k L_ik z[k]``
+    (``z`` holds the loads on entry, ``L`` the unit lower factor of K_eff),
+    then ``y[i] = z[i] / D_i``: after it only the back substitution of ``y``
+    is left (``op`` a :class:`StepOperator`).
+    """
+    indptr, indices, Ka, Mb = op.indptr, op.indices, op.Ka, op.Mb
+    first, ptr, L, Dinv = op.first, op.ptr, op.L, op.Dinv
+    for i in range(u.shape[0]):
+        acc = z[i]
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            acc += Ka[p] * u[j] + Mb[p] * v[j]
+        fi = first[i]
+        pi = ptr[i] - fi
+        for k in range(fi, i):
+            acc -= L[pi + k] * z[k]
+        z[i] = acc
+        y[i] = acc * Dinv[i]
+
+
 @njit(cache=True)
 def run_steps(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """Advance ``a.loads.F.shape[0]`` steps in place; return the number of output rows written.
@@ -267,8 +291,7 @@ def run_steps(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
         :class:`StepOutputs`.
     """
     op, st, ld, out = a.op, a.state, a.loads, a.out
-    indptr, indices, Ka, Mb = op.indptr, op.indices, op.Ka, op.Mb
-    first, ptr, L, Dinv, a1 = op.first, op.ptr, op.L, op.Dinv, op.a1
+    first, ptr, L, a1 = op.first, op.ptr, op.L, op.a1
     s_dof, a_dof, r_dof, kb, db = op.s_dof, op.a_dof, op.r_dof, op.kb, op.db
     u, v, z, y = st.u, st.v, st.z, st.y
     pk_force, pk_rail = st.pk_force, st.pk_rail
@@ -294,18 +317,7 @@ def run_steps(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
             fw = F[s, w]
             for c in range(4):
                 z[ldofs[s, 4 * w + c]] += lw[s, 4 * w + c] * fw
-        # fused: right-hand side row i (-2 K u + (4/dt) M v + loads), forward substitution
-        for i in range(n):
-            acc = z[i]
-            for p in range(indptr[i], indptr[i + 1]):
-                j = indices[p]
-                acc += Ka[p] * u[j] + Mb[p] * v[j]
-            fi = first[i]
-            pi = ptr[i] - fi
-            for k in range(fi, i):
-                acc -= L[pi + k] * z[k]
-            z[i] = acc
-            y[i] = acc * Dinv[i]
+        _rhs_forward(op, u, v, z, y)
         # fused: back substitution (column sweep) and state update
         for i in range(n - 1, -1, -1):
             du = y[i]
@@ -376,20 +388,9 @@ def free_response(op, u, v, z, x):  # type: ignore[no-untyped-def]  # pragma: no
     scattered on the DOFs on entry and is zero on exit (the fused right-hand
     side / forward substitution of :func:`run_steps`).
     """
-    indptr, indices, Ka, Mb = op.indptr, op.indices, op.Ka, op.Mb
-    first, ptr, L, Dinv = op.first, op.ptr, op.L, op.Dinv
+    first, ptr, L = op.first, op.ptr, op.L
     n = u.shape[0]
-    for i in range(n):
-        acc = z[i]
-        for p in range(indptr[i], indptr[i + 1]):
-            j = indices[p]
-            acc += Ka[p] * u[j] + Mb[p] * v[j]
-        fi = first[i]
-        pi = ptr[i] - fi
-        for k in range(fi, i):
-            acc -= L[pi + k] * z[k]
-        z[i] = acc
-        x[i] = acc * Dinv[i]
+    _rhs_forward(op, u, v, z, x)
     for i in range(n - 1, -1, -1):
         xi = x[i]
         z[i] = 0.0
