@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 from clm_core.params import load_model
-from clm_core.stepper import TrackSimulator
+from clm_core.solver import TrackSimulator
 from clm_core.vehicle.coupled import CoupledSimulation
 from clm_core.vehicle.irregularity import Irregularity, random_profile
 from clm_core.vehicle.presets import load_vehicle

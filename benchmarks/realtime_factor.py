@@ -1,11 +1,11 @@
-"""Benchmark: real-time factor of the streaming time integrator (clm_core.stepper).
+"""Benchmark: real-time factor of the streaming time integrator (clm_core.solver).
 
 Simulated seconds per wall-clock second, on one core, for the Mevergnies
 track on its CLM soil (paper Tables 1-2) under a 100 kN load moving at
 30 m/s, after warm-up (JIT cache loaded, first window factorised). In the
 same run:
 
-- the engine: :class:`clm_core.stepper.TrackSimulator` (moving window,
+- the engine: :class:`clm_core.solver.TrackSimulator` (moving window,
   compiled envelope-LDL^T kernel, many steps per call);
 - the straightforward reference: the same window's M, C, K stepped by
   :class:`clm_core.newmark.NewmarkLinear` (scipy sparse LU factorised once,
@@ -51,7 +51,7 @@ import numpy as np  # noqa: E402
 
 from clm_core.newmark import NewmarkLinear, _initial_acceleration  # noqa: E402
 from clm_core.params import ModelParams, load_model  # noqa: E402
-from clm_core.stepper import TrackSimulator  # noqa: E402
+from clm_core.solver import TrackSimulator  # noqa: E402
 
 SPEED = 30.0
 LOAD = 100e3
@@ -75,9 +75,9 @@ def engine_rtf(p: ModelParams, n: int, dt: float, repeat: int, target_wall: floa
         sim.advance(t0 + T, ([x0 + SPEED * T], [LOAD]))
         best = min(best, time.perf_counter() - tic)
         best_cpu = min(best_cpu, time.thread_time() - cpu)
-    op = sim._op
+    op = sim.operator.kernel
     nnz = int(op.indptr[-1])
-    env = int(op.env[1][-1])
+    env = int(op.ptr[-1])
     nd = sim.n_dof
     flops = 4 * nnz + 4 * env + 5 * nd + 12 * n  # rhs (2 FMA/nnz), solves (2 x 1 FMA/entry), update, sleepers
     bytes_op = 24 * nnz + 8 * env + 8 * 2 * (nd + 1) + 8 * nd  # CSR (index + 2 values), L, first/ptr, 1/D

@@ -2,7 +2,7 @@
 
 :class:`OnlineTrackModel` takes a stream of stamped wheel-load frames (what a
 ``clm_msgs/WheelLoads`` message carries), validates each at the edge, advances
-the streaming simulator (:class:`clm_core.stepper.TrackSimulator`) to the
+the streaming simulator (:class:`clm_core.solver.TrackSimulator`) to the
 frame's stamp and returns the response at that stamp. The ROS track node, the
 offline bag replay (``clm replay``) and the tests all call
 :meth:`OnlineTrackModel.process`, so "the node's output equals the offline
@@ -53,7 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from clm_core.errors import InputError, ParameterError
 from clm_core.params import ModelParams
-from clm_core.stepper import Snapshot, TrackSimulator
+from clm_core.solver import Snapshot, TrackSimulator
 
 Array = NDArray[np.float64]
 
@@ -282,7 +282,7 @@ class OnlineTrackModel:
             if unknown:
                 raise Rejected(Reason.UNKNOWN_ID, f"wheel id(s) {unknown} not in the wheel set {sorted(self._slot)}")
         spread = float(fr.positions.max() - fr.positions.min())
-        # one bay less than the nominal zone: the window moves by whole bays (TrackSimulator._required_first)
+        # one bay less than the nominal zone: the window moves by whole bays (clm_core.solver.Window.required)
         allowed = (self.n_sleepers - 2 - self.sim.lead_sleepers - self.sim.margin_sleepers) * self.params.track.spacing
         if spread > allowed:
             raise Rejected(

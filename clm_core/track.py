@@ -100,31 +100,98 @@ class SleeperProperties:
     dc: Array
 
 
-def sleeper_properties(params: ModelParams, global_index: IntArray) -> SleeperProperties:
-    """Per-sleeper values for the sleepers with the given global indices (overrides applied)."""
-    n = len(global_index)
-    t, s = params.track, params.soil
-    base = {
-        "kp": t.kp,
-        "dp": t.dp,
-        "ms": t.ms,
-        "kb": t.kb,
-        "db": t.db,
-        "mf": s.mf,
-        "kf": s.kf,
-        "df": s.df,
-        "kc": s.kc,
-        "dc": s.dc,
-    }
-    vals = {k: np.full(n, float(v)) for k, v in base.items()}
-    pos = {int(g): i for i, g in enumerate(global_index)}
-    for ov in params.overrides:
-        for g in ov.sleepers:
-            i = pos.get(int(g))
-            if i is None:
-                continue
-            for name, v in ov.values.items():
-                vals[name][i] = v
+class SleeperValues:
+    """Per-sleeper parameter values along the line: base values with the overrides applied.
+
+    The one place where the per-sleeper overrides of a :class:`ModelParams`
+    (:class:`~clm_core.params.SleeperOverride`, global sleeper indices) are
+    applied: :func:`sleeper_properties` (hence :func:`assemble`), the
+    operator cache of the streaming solver (its keys) and the stability check
+    of overridden stretches (:func:`check_overridden_stretches`) all read
+    them from here. Overrides apply in their order (a later one wins where
+    two overlap); ``kc`` and ``dc`` of sleeper ``g`` belong to the link
+    ``g -> g + 1``. Values are raw: the soil-model rules (e.g. no ``kc`` off
+    the CLM model) are applied by :func:`sleeper_properties`.
+
+    Parameters
+    ----------
+    params : ModelParams
+        Base values (track and soil sections) and overrides.
+
+    Notes
+    -----
+    Indexing costs O(total overridden sleepers) once; :meth:`values` costs
+    O(n log m) per override for n sleepers, independent of the length of
+    line the overrides cover.
+    """
+
+    def __init__(self, params: ModelParams) -> None:
+        t, s = params.track, params.soil
+        self.base: dict[str, float] = {
+            "kp": t.kp, "dp": t.dp, "ms": t.ms, "kb": t.kb, "db": t.db,
+            "mf": s.mf, "kf": s.kf, "df": s.df, "kc": s.kc, "dc": s.dc,
+        }
+        self._ov = [(np.unique(np.asarray(o.sleepers, dtype=np.int64)), dict(o.values)) for o in params.overrides]
+        touched = [g for g, _ in self._ov]
+        #: Sorted global indices of every overridden sleeper.
+        self.touched: IntArray = np.unique(np.concatenate(touched)) if touched else np.zeros(0, dtype=np.int64)
+
+    def values(self, global_index: IntArray | None, n: int = 0) -> dict[str, Array]:
+        """Raw per-sleeper values {name: (n,) array} of sleepers ``global_index`` (None: ``n`` base ones)."""
+        m = n if global_index is None else len(global_index)
+        vals = {k: np.full(m, float(v)) for k, v in self.base.items()}
+        if global_index is not None:
+            for g, changes in self._ov:
+                mask = _member(np.asarray(global_index, dtype=np.int64), g)
+                if mask.any():
+                    for name, v in changes.items():
+                        vals[name][mask] = v
+        return vals
+
+    def key(self, global_index: IntArray | None, n: int = 0) -> bytes:
+        """The values of :meth:`values` (and the count) as bytes: equal keys, identical stretches."""
+        vals = self.values(global_index, n)
+        m = n if global_index is None else len(global_index)
+        return np.concatenate([vals[k] for k in PER_SLEEPER_NAMES]).tobytes() + int(m).to_bytes(8, "little")
+
+    def touches(self, first: int, count: int) -> bool:
+        """Whether any of the sleepers ``first .. first + count - 1`` is overridden."""
+        if not self.touched.size:
+            return False
+        i = int(np.searchsorted(self.touched, first))
+        return i < self.touched.size and int(self.touched[i]) < first + count
+
+
+def _member(gidx: IntArray, sorted_unique: IntArray) -> NDArray[np.bool_]:
+    """Which of ``gidx`` are in the sorted unique array (O(len(gidx) log m))."""
+    if sorted_unique.size == 0:
+        return np.zeros(gidx.shape, dtype=bool)
+    i = np.clip(np.searchsorted(sorted_unique, gidx), 0, sorted_unique.size - 1)
+    return np.asarray(sorted_unique[i] == gidx)
+
+
+def sleeper_properties(
+    params: ModelParams, global_index: IntArray, values: SleeperValues | None = None
+) -> SleeperProperties:
+    """Per-sleeper values for the sleepers with the given global indices (overrides applied).
+
+    Parameters
+    ----------
+    params : ModelParams
+        Parameters (the soil model decides which values are used).
+    global_index : (n,) int array
+        Global sleeper indices.
+    values : SleeperValues, optional
+        The per-sleeper values of ``params``, when the caller keeps them
+        (indexed once for many windows); built from ``params`` otherwise.
+
+    Raises
+    ------
+    ParameterError
+        A per-sleeper value outside its range (names the sleeper).
+    """
+    s = params.soil
+    vals = (values if values is not None else SleeperValues(params)).values(global_index)
     for name in PER_SLEEPER_NAMES:
         a = vals[name]
         if name in ("kp", "ms", "kb") and np.any(a <= 0):
@@ -253,6 +320,7 @@ def assemble(
     rail_ends: RailEnds = "free",
     overhang_elements: int | None = None,
     check_stability: bool = True,
+    sleeper_values: SleeperValues | None = None,
 ) -> TrackSystem:
     """Assemble M, C, K of a track of ``n_sleepers`` on the chosen soil model.
 
@@ -273,6 +341,10 @@ def assemble(
         (half a bay).
     check_stability : bool
         Refuse a damping matrix with a negative-dissipation direction (Sec. 4.2).
+    sleeper_values : SleeperValues, optional
+        The per-sleeper values of ``params`` indexed once (a caller that
+        assembles many windows of one line passes them); built from
+        ``params`` otherwise.
 
     Raises
     ------
@@ -294,7 +366,7 @@ def assemble(
     d = params.track.spacing
     gidx = np.arange(first_sleeper, first_sleeper + n_sleepers, dtype=np.int64)
     sx = gidx * d
-    props = sleeper_properties(params, gidx)
+    props = sleeper_properties(params, gidx, sleeper_values)
     model = params.soil.model
     has_area = model != "rigid"
 
@@ -442,3 +514,54 @@ def check_damping(system: TrackSystem) -> None:
             f"(soil d_f = {s.df:g}, d_c = {s.dc:g} N s/m, ballast d_b = {system.params.track.db:g} N s/m); "
             "the negative coupling damping outweighs the damping around it (Kouroussis et al. 2011, Sec. 4.2)"
         )
+
+
+def check_overridden_stretches(
+    params: ModelParams, elements_per_bay: int = 2, sleeper_values: SleeperValues | None = None
+) -> None:
+    """Refuse a line whose overridden stretches are unstable (Sec. 4.2), however far along the line.
+
+    Every cluster of overridden sleepers (gaps of at most 4 sleepers) is
+    assembled with two neighbours on either side, in pieces of at most 400
+    sleepers overlapping by 20, and its damping matrix checked
+    (:func:`check_damping`); identical pieces are checked once.
+
+    Parameters
+    ----------
+    params : ModelParams
+        Parameters with per-sleeper overrides (nothing to check without).
+    elements_per_bay : int
+        Rail elements per sleeper bay of the assemblies.
+    sleeper_values : SleeperValues, optional
+        The per-sleeper values of ``params``, if already indexed.
+
+    Raises
+    ------
+    ParameterError
+        A per-sleeper value outside its range.
+    StabilityError
+        A damping matrix that is not positive semi-definite.
+    """
+    values = sleeper_values if sleeper_values is not None else SleeperValues(params)
+    g = values.touched
+    if not g.size:
+        return
+    breaks = np.nonzero(np.diff(g) > 4)[0]
+    starts = np.concatenate([[g[0]], g[breaks + 1]])
+    ends = np.concatenate([g[breaks], [g[-1]]])
+    seen: set[bytes] = set()
+    piece, overlap = 400, 20
+    for a, b in zip(starts, ends):
+        lo, hi = int(a) - 2, int(b) + 3
+        s = lo
+        while True:
+            e = min(hi, s + piece)
+            n = max(e - s, 2)
+            key = values.key(np.arange(s, s + n, dtype=np.int64))
+            if key not in seen:
+                seen.add(key)
+                assemble(params, n, elements_per_bay=elements_per_bay, first_sleeper=s, check_stability=True,
+                         sleeper_values=values)
+            if e >= hi:
+                break
+            s = e - overlap

@@ -3,7 +3,7 @@
 The bag holds ``clm_msgs/msg/WheelLoads`` (a bogie at 25 m/s, 80 kN wheels
 with a 9 Hz load fluctuation) and ``clm_msgs/msg/SleeperResponse`` (rail and
 sleeper displacements of two instrumented sleepers, 30 dB noise), generated
-by :class:`clm_core.stepper.TrackSimulator` at dt = 0.1 ms; the fit runs the
+by :class:`clm_core.solver.TrackSimulator` at dt = 0.1 ms; the fit runs the
 same engine at 0.5 ms from another starting point.
 """
 

@@ -134,7 +134,7 @@ def test_newton_failure_is_reported_by_both_paths(params: ModelParams, power_car
 
 def test_track_two_phase_api_after_compiled_chunks(params: ModelParams, power_car: Train) -> None:
     """coupled_chunk / coupled_commit leave a TrackSimulator whose begin_step / finish_step continue exactly."""
-    from clm_core.stepper import TrackSimulator
+    from clm_core.solver import TrackSimulator
     from clm_core.vehicle._coupled_kernel import coupled_steps
     from clm_core.vehicle.contact import static_compression
     from clm_core.vehicle.multibody import VehicleNewmark

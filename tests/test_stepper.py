@@ -1,4 +1,4 @@
-"""Streaming time integration (clm_core.stepper): physics checks.
+"""Streaming time integration (clm_core.solver): physics checks.
 
 Closed-form limits (static solution, load balance), the reference Newmark,
 the frequency domain (harmonic steady state at the scheme's shifted
@@ -19,7 +19,7 @@ from clm_core.frequency import dynamic_solve
 from clm_core.io.history import HistoryRecorder, TimeHistory
 from clm_core.newmark import NewmarkLinear, _initial_acceleration
 from clm_core.params import ModelParams, SleeperOverride, load_model
-from clm_core.stepper import Block, TrackSimulator
+from clm_core.solver import Block, TrackSimulator
 from clm_core.track import assemble
 
 F0 = 100e3  # wheel load [N]

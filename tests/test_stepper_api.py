@@ -13,7 +13,7 @@ from clm_core.cli import main
 from clm_core.errors import InputError, ParameterError, StabilityError
 from clm_core.io.history import HistoryRecorder, load_history
 from clm_core.params import ModelParams, SleeperOverride, load_model, save_params_file
-from clm_core.stepper import LoadTable, Snapshot, TrackSimulator
+from clm_core.solver import LoadTable, Snapshot, TrackSimulator
 
 F0 = 100e3
 

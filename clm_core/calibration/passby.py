@@ -1,7 +1,7 @@
 """Pass-by test: output-error fit of track parameters through the time-domain engine.
 
 Measured wheel loads (``clm_msgs/msg/WheelLoads``: positions and forces per
-instant) drive the streaming simulator :class:`clm_core.stepper.TrackSimulator`
+instant) drive the streaming simulator :class:`clm_core.solver.TrackSimulator`
 (Newmark average acceleration on the assembled track, paper Sec. 5) over a
 fixed window that holds every wheel position of the record; its rail,
 sleeper or soil-area displacements at the instrumented sleepers are compared
@@ -74,7 +74,7 @@ def simulate_channels(
     (n, n_ch) array
         Simulated responses; NaN outside the loads' time span.
     """
-    from clm_core.stepper import LoadTable, TrackSimulator
+    from clm_core.solver import LoadTable, TrackSimulator
 
     d = params.track.spacing
     idx = [int(c.index) for c in channels]

@@ -2,9 +2,9 @@
 
 Moving constant loads (``--load``, ``--speed``, ``--axles``), a wheel-load
 time history (``--loads-file``, CSV, format in
-:meth:`clm_core.stepper.LoadTable.read_csv`) or a multibody vehicle
+:meth:`clm_core.solver.LoadTable.read_csv`) or a multibody vehicle
 (``--vehicle``, :mod:`clm_core.vehicle.run`) drive the streaming simulator
-(:class:`clm_core.stepper.TrackSimulator`, a window of sleepers that follows
+(:class:`clm_core.solver.TrackSimulator`, a window of sleepers that follows
 the wheels). Writes to ``--out``: ``history.npz``, ``sleepers.csv``,
 ``wheels.csv``, ``peaks.csv`` (layouts in :mod:`clm_core.io.history`),
 ``simulate.png`` and ``summary.json``. Every option and its default comes from
@@ -129,7 +129,7 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
     from clm_core.io.plots import plot_run
     from clm_core.peaks import BlockPeaks, masked_max, peak_window
     from clm_core.progress import Progress
-    from clm_core.stepper import LoadTable, TrackSimulator
+    from clm_core.solver import LoadTable, TrackSimulator
 
     d = params.track.spacing
     dt = float(args.dt)

@@ -1,7 +1,7 @@
 """Time-history files: one writer per format (NPZ, CSV, JSON), one layout per file.
 
-:meth:`clm_core.stepper.TrackSimulator.advance` hands its outputs to a
-callback, one :class:`~clm_core.stepper.Block` per stretch of steps with the
+:meth:`clm_core.solver.TrackSimulator.advance` hands its outputs to a
+callback, one :class:`~clm_core.solver.Block` per stretch of steps with the
 window in one position. Two callbacks are provided:
 
 - :class:`HistoryRecorder` keeps the blocks in memory and returns one
@@ -94,7 +94,7 @@ from numpy.typing import ArrayLike, NDArray
 from clm_core.errors import InputError
 
 if TYPE_CHECKING:
-    from clm_core.stepper import Block
+    from clm_core.solver import Block
     from clm_core.vehicle.coupled import CoupledResult
 
 Array = NDArray[np.float64]
@@ -102,7 +102,7 @@ IntArray = NDArray[np.int64]
 
 #: Sleeper fields of a history, in the order of ``sleepers.csv``.
 SLEEPER_FIELDS = ("soil_force", "rail_deflection", "sleeper_displacement", "area_displacement")
-#: History wheel field -> :class:`~clm_core.stepper.Block` attribute.
+#: History wheel field -> :class:`~clm_core.solver.Block` attribute.
 WHEEL_FIELDS = (("wheel_position", "wheel_positions"), ("wheel_force", "wheel_forces"),
                 ("wheel_deflection", "wheel_deflection"), ("wheel_velocity", "wheel_velocity"))
 #: Columns of ``sleepers.csv``.

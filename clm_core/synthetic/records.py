@@ -9,7 +9,7 @@ from the one the fit uses:
   (:func:`clm_core.track.assemble`) under a hammer pulse, at ``oversample``
   times the output rate; then the acquisition: the same anti-alias FIR filter
   and decimation on every channel (:func:`scipy.signal.resample_poly`);
-- pass-by: the streaming engine :class:`clm_core.stepper.TrackSimulator`
+- pass-by: the streaming engine :class:`clm_core.solver.TrackSimulator`
   under moving wheel loads, at a finer step than the output rate;
 - noise: white Gaussian noise on every channel, force included, at a stated
   signal-to-noise ratio SNR = 20 log10(rms_active / sigma_noise), rms_active

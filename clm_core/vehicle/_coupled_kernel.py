@@ -2,19 +2,19 @@
 
 :func:`coupled_steps` runs many steps of the monolithic coupled scheme in one
 call, for a stretch of steps with the track window in one position (the
-Python side shifts the window between calls, :meth:`TrackSimulator.coupled_chunk`).
+Python side shifts the window between calls, :meth:`clm_core.solver.TrackSimulator.coupled_chunk`).
 Per step it does what ``TrackSimulator.begin_step``,
 ``VehicleNewmark.step_with_contact`` and ``TrackSimulator.finish_step`` do
 from Python, with the same arithmetic up to rounding:
 
 1. track free response: x0 = K_eff^-1 (-2 K u + (4/dt) M v + f_n), the step
    increment with zero wheel forces at t + dt (one fused right-hand side,
-   forward and back substitution, :func:`clm_core._kernels.free_response`);
+   forward and back substitution, :func:`clm_core.solver._kernels.free_response`);
    rail deflection under the wheels w_free = N (u + x0);
 2. wheel compliance G = N K_eff^-1 N^T from the columns K_eff^-1 e_d of the
    rail DOFs d the wheels load. These depend on the window's operator only,
    not on the step, so they are computed once per operator and DOF
-   (:meth:`TrackSimulator._columns`): on a uniform track the wheels revisit
+   (:meth:`clm_core.solver.operators.Operator.columns`): on a uniform track the wheels revisit
    the same window DOFs after every shift and no solve is left per step;
 3. vehicle Newmark predictor, Newton solution of the Hertz contact and
    vehicle update: the compiled
@@ -31,17 +31,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from clm_core._kernels import free_response
+from clm_core.solver._kernels import free_response
 from clm_core.vehicle.contact import fused_vehicle_contact_step
 
 
 @njit(cache=True)
 def coupled_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    # track operator and state (TrackSimulator.coupled_chunk)
-    indptr, indices, Ka, Mb, first, ptr, L, Dinv, a1,
-    u, v, z, x0, prev_dofs, prev_vals,
-    ldofs, lw, cols, slot,
-    s_dof, a_dof, r_dof, kb, db, pk_force, pk_rail,
+    # track operator, state, wheel weights and columns (the fields of TrackSimulator.coupled_chunk's CoupledTrack)
+    op, state, ldofs, lw, cols, slot,
     # vehicle (VehicleNewmark) and contact
     Kinv, KinvB, H, Mv, Cv, Kv, grav, wdof, vu, vv, va, u_ref, dt,
     R, ch, delta, tol, maxit,
@@ -54,7 +51,13 @@ def coupled_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compile
 
     Parameters (all arrays contiguous)
     ----------------------------------
-    indptr .. pk_rail : as returned by ``TrackSimulator.coupled_chunk``.
+    op, state, ldofs, lw, cols, slot : the fields of the
+        :class:`clm_core.solver._kernels.CoupledTrack` returned by
+        ``TrackSimulator.coupled_chunk``: the window's operator
+        (:class:`~clm_core.solver._kernels.StepOperator`), the track state
+        (:class:`~clm_core.solver._kernels.StepState`, updated in place; its
+        work array ``y`` holds the free response), the wheels' element DOFs
+        and Hermite weights (S, 4 W) and the columns ``cols[slot[d]] = K_eff^-1 e_d``.
     Kinv, KinvB, H : the vehicle's K_hat^-1, K_hat^-1 B and B^T K_hat^-1 B.
     Mv, Cv, Kv, grav, wdof : vehicle mass, damping, stiffness matrices, gravity
         force and wheel DOFs.
@@ -77,6 +80,9 @@ def coupled_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compile
     [m]; that step is not completed on the track, the vehicle state has been
     advanced).
     """
+    a1, s_dof, a_dof, r_dof, kb, db = op.a1, op.s_dof, op.a_dof, op.r_dof, op.kb, op.db
+    u, v, z, x0 = state.u, state.v, state.z, state.y
+    prev_dofs, prev_vals, pk_force, pk_rail = state.prev_dofs, state.prev_vals, state.pk_force, state.pk_rail
     n = u.shape[0]
     S = ldofs.shape[0]
     W = ldofs.shape[1] // 4
@@ -98,7 +104,7 @@ def coupled_steps(  # type: ignore[no-untyped-def]  # pragma: no cover - compile
                 fw = load[s - 1, w]
                 for c in range(4):
                     z[ldofs[s - 1, 4 * w + c]] += lw[s - 1, 4 * w + c] * fw
-        free_response(indptr, indices, Ka, Mb, first, ptr, L, Dinv, u, v, z, x0)
+        free_response(op, u, v, z, x0)
         # free deflection and compliance under the wheels
         for q in range(4 * W):
             rows[q] = slot[ldofs[s, q]]

@@ -5,7 +5,7 @@ One time step (t -> t + dt) couples three implicit pieces:
 1. the vehicle, average-acceleration Newmark (:class:`VehicleNewmark`):
    wheel displacements z = z_free - H P, affine in the contact forces P;
 2. the track, the streaming engine's two-phase step
-   (:meth:`clm_core.stepper.TrackSimulator.begin_step`): rail deflection
+   (:meth:`clm_core.solver.TrackSimulator.begin_step`): rail deflection
    under the wheels w = w_free + G P, also average-acceleration Newmark;
 3. Hertz's law at each wheel, P = C_H max(delta, 0)^1.5 with
    delta = z - w - r(x), solved for the n_w forces by Newton's method
@@ -272,7 +272,7 @@ class CoupledSimulation:
     x_start : float
         Position of the first wheel at t = 0 [m].
     engine : {'stream', 'stream-python', 'fixed'}
-        ``'stream'``: :class:`clm_core.stepper.TrackSimulator`, the moving
+        ``'stream'``: :class:`clm_core.solver.TrackSimulator`, the moving
         window (production), stepped by the compiled coupled kernel
         (:mod:`clm_core.vehicle._coupled_kernel`, many steps per call between
         window shifts). ``'stream-python'``: the same engine and scheme
@@ -379,10 +379,10 @@ class CoupledSimulation:
                 self.elements_per_bay,
             )
         try:
-            from clm_core.stepper import TrackSimulator
+            from clm_core.solver import TrackSimulator
         except ImportError as exc:  # pragma: no cover - depends on the tree
             raise InputError(
-                "engine = 'stream' needs clm_core.stepper.TrackSimulator, which is not available "
+                "engine = 'stream' needs clm_core.solver.TrackSimulator, which is not available "
                 f"({exc}); use engine = 'fixed'"
             ) from None
         return TrackSimulator(
@@ -503,7 +503,7 @@ class CoupledSimulation:
         every ``snapshot_every`` steps and the soil-force peaks merged at
         snapshot steps.
         """
-        from clm_core.stepper import CHUNK_STEPS
+        from clm_core.solver import CHUNK_STEPS
         from clm_core.vehicle import _coupled_kernel
 
         coupled_steps: Callable[..., tuple[int, int, int, float]] = _coupled_kernel.coupled_steps
@@ -547,7 +547,7 @@ class CoupledSimulation:
                 idx = np.arange(first, first + N, dtype=np.int64)
                 x = idx.astype(np.float64) * track.spacing
                 for k in range(ns):
-                    snaps.append((float(track._t0 + int(step_buf[k]) * track.dt), idx, x, sf_buf[k], sr_buf[k]))
+                    snaps.append((float(track.time_of_step(int(step_buf[k]))), idx, x, sf_buf[k], sr_buf[k]))
                 for g, f in zip(idx.tolist(), pk_buf.tolist()):
                     if f > peaks.get(g, -math.inf):
                         peaks[g] = f

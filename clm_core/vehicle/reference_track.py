@@ -1,7 +1,7 @@
 """A fixed-window reference track engine with the TrackSimulator coupling API.
 
 :class:`FixedTrack` implements the interface the coupled vehicle–track
-simulation needs from :class:`clm_core.stepper.TrackSimulator`
+simulation needs from :class:`clm_core.solver.TrackSimulator`
 (``initialize``, ``begin_step``, ``finish_step``, ``step``, ``snapshot``)
 the straightforward way: one long track assembled once
 (:func:`clm_core.track.assemble`), average-acceleration Newmark with a

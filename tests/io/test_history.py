@@ -26,7 +26,7 @@ from clm_core.io.history import (
     write_npz,
 )
 from clm_core.params import load_model
-from clm_core.stepper import TrackSimulator
+from clm_core.solver import TrackSimulator
 
 
 @pytest.fixture(scope="module")

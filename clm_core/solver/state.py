@@ -1,0 +1,104 @@
+"""The state of the streaming simulator: what changes while it runs.
+
+:class:`SimulatorState` is everything a
+:class:`~clm_core.solver.TrackSimulator` changes as it steps: the window's
+placement and operator, the displacement and velocity vectors, the time, the
+current loads and the running peaks. The simulator copies it before each
+call and puts the copy back when the call is refused, so a refused call
+leaves the state unchanged. :class:`PendingStep` is the first half of a
+two-phase step (:meth:`~clm_core.solver.TrackSimulator.begin_step`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from clm_core.solver.operators import Operator
+from clm_core.solver.window import Placement
+
+Array = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class PendingStep:
+    """A step begun by :meth:`clm_core.solver.TrackSimulator.begin_step`, waiting for its wheel forces.
+
+    Attributes
+    ----------
+    positions : (n_w,) array
+        Wheel positions at t + dt [m].
+    x0 : (n,) array
+        Step increment with zero wheel forces at t + dt [m].
+    dofs, weights : (4 n_w,) int array, (4 n_w,) array
+        Wheel element DOFs and Hermite weights.
+    Gc : (n, n_w) array
+        K_eff^-1 applied to each wheel's load pattern [m/N].
+    Wm : (n_w, n) array
+        Interpolation of the rail deflection under each wheel.
+    k : int
+        Step count when the step was begun (a later step invalidates it).
+    """
+
+    positions: Array
+    x0: Array
+    dofs: IntArray
+    weights: Array
+    Gc: Array
+    Wm: Array
+    k: int
+
+
+@dataclass
+class SimulatorState:
+    """Everything that changes while a :class:`~clm_core.solver.TrackSimulator` runs (what a refused call restores).
+
+    Attributes
+    ----------
+    placement : Placement
+        Where the window is.
+    op : Operator
+        The operator of that placement.
+    u, v : (n,) arrays
+        Displacement [m] and velocity [m/s] of the window's DOFs.
+    t0 : float
+        Time of the last :meth:`~clm_core.solver.TrackSimulator.initialize` [s].
+    k : int
+        Steps since then (time ``t0 + k dt``).
+    prev_dofs, prev_vals : int array, array
+        The load vector at the current time as (DOF, value [N]) pairs.
+    pos, F : (n_w,) arrays
+        Wheel positions [m] (NaN: absent) and forces [N] at the current time.
+    pk_force, pk_rail : (N,) arrays
+        Running maxima of the soil force [N] and rail deflection [m] per sleeper.
+    pending : PendingStep or None
+        The step begun by :meth:`~clm_core.solver.TrackSimulator.begin_step`.
+    """
+
+    placement: Placement
+    op: Operator
+    u: Array
+    v: Array
+    t0: float
+    k: int
+    prev_dofs: IntArray
+    prev_vals: Array
+    pos: Array
+    F: Array
+    pk_force: Array
+    pk_rail: Array
+    pending: PendingStep | None = None
+
+    def copy(self) -> SimulatorState:
+        """A copy whose arrays are independent of this state's (the operator and pending step are shared)."""
+        return SimulatorState(
+            self.placement, self.op, self.u.copy(), self.v.copy(), self.t0, self.k, self.prev_dofs.copy(),
+            self.prev_vals.copy(), self.pos.copy(), self.F.copy(), self.pk_force.copy(), self.pk_rail.copy(),
+            self.pending,
+        )
+
+
+__all__ = ["PendingStep", "SimulatorState"]
