@@ -34,8 +34,8 @@ grows by 2 max(5, ceil(max|index| / 2)) areas while the rms residual falls by
 more than ``grow_tol`` (0.5 %); the trials are kept in
 :attr:`SoilFit.chain_trials`. After the fit, the residuals are whitened
 with the noise model and tested (:func:`clm_core.calibration.residuals.residual_whiteness`):
-an rms above 1.2 or a lag-1 autocorrelation along frequency above 0.05
-(Ljung–Box p < 1e-3) gives a warning that names the channels with the
+an rms residual above 1.2 or a lag-1 autocorrelation of the whitened
+residuals along frequency above 0.05 (Ljung–Box p < 1e-3) gives a warning that names the channels with the
 largest misfit and, for a fixed chain, the rms a longer chain reaches.
 
 Lysmer's analogue (m_f, k_f, d_f; Eq. 2–3) and the Winkler model (k_f, d_f)
@@ -88,7 +88,7 @@ CArray = NDArray[np.complex128]
 SOIL_FIT_MODELS: tuple[str, ...] = ("clm", "lysmer", "winkler")
 #: First-estimate methods of the CLM fit (:func:`fit_impact`).
 FIRST_ESTIMATES: tuple[str, ...] = ("weighted", "paper")
-#: Residuals pass as noise when their rms (plain and whitened) is at most this [-] ...
+#: Residuals pass as noise when their rms (weighted norm) is at most this [-] ...
 WHITE_RMS = 1.2
 #: ... and their lag-1 autocorrelation is at most this [-], or not significant at WHITE_P.
 WHITE_LAG1 = 0.05
@@ -567,9 +567,8 @@ def _fit_chain(
 
 
 def _looks_white(rms: float, w: WhitenessCheck) -> bool:
-    """Residuals pass as the noise: rms <= 1.2 (plain and whitened), no lag-1 correlation (> 0.05 at p < 1e-3)."""
-    correlated = w.lag1 > WHITE_LAG1 and w.p_value < WHITE_P
-    return bool(rms <= WHITE_RMS and w.rms <= WHITE_RMS and not correlated)
+    """Residuals pass as the noise: rms <= 1.2 and no lag-1 correlation of the whitened residuals (> 0.05, p < 1e-3)."""
+    return bool(rms <= WHITE_RMS and w.white(WHITE_LAG1, WHITE_P))
 
 
 def _whiteness_warning(

