@@ -58,8 +58,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
-from scipy.stats import t as student_t
 
 from clm_core.calibration.errors import CalibrationError
 from clm_core.errors import ParameterError
@@ -347,6 +345,9 @@ def fit_bounded(
     CalibrationError
         A starting point outside the bounds or non-finite residuals there.
     """
+    from scipy.optimize import least_squares  # lazy: importing this module (options, the CLI parser) stays light
+    from scipy.stats import t as student_t
+
     p0 = np.asarray(p0, dtype=float)
     n = p0.size
     Ainv = np.linalg.inv(A)
