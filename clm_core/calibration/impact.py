@@ -33,10 +33,12 @@ By default (``n_areas=None``) the chain starts at 2 max|index| + 1 areas and
 grows by 2 max(5, ceil(max|index| / 2)) areas while the rms residual falls by
 more than ``grow_tol`` (0.5 %); the trials are kept in
 :attr:`SoilFit.chain_trials`. After the fit, the residuals are whitened
-with the noise model and tested (:func:`clm_core.calibration.residuals.residual_whiteness`):
-an rms residual above 1.2 or a lag-1 autocorrelation of the whitened
-residuals along frequency above 0.05 (Ljung–Box p < 1e-3) gives a warning that names the channels with the
-largest misfit and, for a fixed chain, the rms a longer chain reaches.
+with the noise model and tested
+(:func:`clm_core.calibration.residuals.residual_whiteness`): an rms
+residual above 1.2 or a lag-1 autocorrelation of the whitened residuals
+along frequency above 0.05 (Ljung–Box p < 1e-3) gives a warning that names
+the channels with the largest misfit and, for a fixed chain, the rms a
+longer chain reaches.
 
 Lysmer's analogue (m_f, k_f, d_f; Eq. 2–3) and the Winkler model (k_f, d_f)
 have no coupling: they predict only the loaded area, and are fitted to the
