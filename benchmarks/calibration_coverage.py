@@ -61,7 +61,6 @@ from calibration_truth import add_noise as add_noise_exact
 
 from clm_core.calibration.impact import SoilFit, fit_impact
 from clm_core.calibration.lsq import covariance
-from clm_core.calibration.models import CHAIN_PARAMS, chain_response
 from clm_core.calibration.residuals import (
     make_sandwich,
     norm_weights,
@@ -73,6 +72,7 @@ from clm_core.calibration.spectra import TransferData, WindowSpec, transfer_func
 from clm_core.calibration.synthetic import add_noise as add_noise_synthetic
 from clm_core.calibration.synthetic import simulate_impact
 from clm_core.params import SoilParams, load_soil
+from clm_core.soil.chain import CHAIN_PARAMS, chain_response
 
 NAMES = CHAIN_PARAMS
 ESTIMATORS = ("before", "noise-nopcov", "noise", "inflated", "hac3", "hac12")

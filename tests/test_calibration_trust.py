@@ -22,12 +22,12 @@ import pytest
 from clm_core.calibration import CalibrationOptions
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.impact import fit_impact
-from clm_core.calibration.models import chain_response
 from clm_core.calibration.residuals import make_sandwich, norm_weights, stack_residual
 from clm_core.calibration.signals import SamplingRules, common_grid
 from clm_core.calibration.spectra import WindowSpec, transfer_functions
 from clm_core.calibration.synthetic import add_noise, simulate_impact
 from clm_core.params import SoilParams, load_soil
+from clm_core.soil.chain import chain_response
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ("mf", "kf", "df", "kc", "dc")
