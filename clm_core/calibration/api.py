@@ -183,7 +183,31 @@ class CalibrationResult:
             "notes": list(self.notes),
             "elapsed_s": self.elapsed_s,
         }
+        out["fit"]["interval_method"] = self.stats.interval
         if isinstance(self.main_fit, SoilFit):
+            mf = self.main_fit
+            if mf.first_estimate_parameters:
+                out["first_estimate_ci95"] = {
+                    p.name: [_num(p.ci_low), _num(p.ci_high)] for p in mf.first_estimate_parameters
+                }
+            out["fit"]["chain"] = {
+                "n_areas": mf.n_areas,
+                "selection": mf.chain_selection,
+                "trials": [{"n_areas": n, "rms_residual": rr} for n, rr in mf.chain_trials],
+            }
+            if mf.whiteness is not None:
+                w = mf.whiteness
+                out["fit"]["residual_whiteness"] = {
+                    "rms_whitened": w.rms,
+                    "lag1_autocorrelation": w.lag1,
+                    "ljung_box": w.ljung_box,
+                    "ljung_box_lags": w.lags,
+                    "p_value": w.p_value,
+                }
+            if self.stats.inflation:
+                out["fit"]["interval_inflation"] = {
+                    name: c for name, c in zip(mf.channels_used, self.stats.inflation)
+                }
             out["comparisons"][self.main_fit.model] = {
                 "parameters": {p.name: p.value for p in self.main_fit.parameters},
                 "misfit_loaded_area": self.main_fit.misfit_loaded,
@@ -347,6 +371,8 @@ def calibrate(
             max_nfev=opts.max_nfev or 200,
             ident_rel=opts.ident_rel,
             cond_max=opts.cond_max,
+            interval=opts.interval,
+            first=opts.first,
         )
         warnings += main.warnings
         report(f"{opts.model} fit", 0.6)
@@ -356,7 +382,8 @@ def calibrate(
                 try:
                     comps.append(
                         fit_impact(data, other, opts.norm, opts.n_areas, None, first,
-                                   max_nfev=opts.max_nfev or 200, ident_rel=opts.ident_rel, cond_max=opts.cond_max)
+                                   max_nfev=opts.max_nfev or 200, ident_rel=opts.ident_rel, cond_max=opts.cond_max,
+                                   interval=opts.interval, first=opts.first)
                     )
                 except CalibrationError as exc:
                     warnings.append(f"comparison fit {other}: {exc}")

@@ -6,17 +6,39 @@ H_j = X_j / F (:mod:`clm_core.calibration.spectra`). The fit follows the
 paper's route (Kouroussis et al. 2011, Sec. 4.1) and then refines it:
 
 1. First estimate: the total and alternating sums, Eq. (16) and (18),
-   F / sum_j X_j = k_f - w^2 m_f + j w d_f and
-   F / sum_j (-1)^j X_j = (k_f + 4 k_c) - w^2 m_f + j w (d_f + 4 d_c),
-   with a quadratic fit of the real parts and a linear fit of the imaginary
-   parts (:func:`clm_core.soil.fit.fit_clm_sums`). A one-sided record
-   is completed by symmetry, Eq. (19)–(20).
+   F / sum_j X_j = k_f + s d_f + s^2 m_f and
+   F / sum_j (-1)^j X_j = (k_f + 4 k_c) + s (d_f + 4 d_c) + s^2 m_f.
+   Default (``first='weighted'``): a noise-weighted output-error fit of both
+   sums at the windowed complex frequency, areas below their noise left out
+   of the sums, with 95 % intervals (:func:`clm_core.calibration.sums.fit_sums`).
+   ``first='paper'`` (and without a noise estimate): the paper's route on
+   the unwindowed receptances, a quadratic fit of the real parts and a
+   linear fit of the imaginary parts, relative norm
+   (:func:`clm_core.soil.fit.fit_clm_sums`, total-first route); under noise it
+   underestimates k_c by tens of percent (issue 14, docs/calibration.md). A
+   one-sided record is completed by symmetry, Eq. (19)–(20).
 2. Refinement: all five parameters by bounded nonlinear least squares on all
    measured receptances, model :func:`clm_core.soil.chain.chain_response`
-   (the chain of :func:`clm_core.soil.chain.chain_matrices`, same number of
-   areas) at the windowed complex frequency, over admissible sets only:
-   m_f, k_f > 0, k_c >= 0, d_f >= 0 and d_f + 4 d_c >= 0 (damping matrix
-   positive semi-definite, Sec. 4.2).
+   (the chain of :func:`clm_core.soil.chain.chain_matrices`) at the windowed
+   complex frequency, over admissible sets only: m_f, k_f > 0, k_c >= 0,
+   d_f >= 0 and d_f + 4 d_c >= 0 (damping matrix positive semi-definite,
+   Sec. 4.2). 95 % intervals: :mod:`clm_core.calibration.lsq` (default
+   ``inflated``: the noise-model sandwich, each channel's noise covariance
+   scaled by its excess of residual power).
+
+Chain length. The soil goes on beyond the last geophone, so the chain of
+the model may need more areas than the record spans (a chain of
+2 max|index| + 1 areas with free ends reflects what the soil carries away).
+By default (``n_areas=None``) the chain starts at 2 max|index| + 1 areas and
+grows by 2 max(5, ceil(max|index| / 2)) areas while the rms residual falls by
+more than ``grow_tol`` (0.5 %); the trials are kept in
+:attr:`SoilFit.chain_trials`. After the fit, the residuals are whitened
+with the noise model and tested
+(:func:`clm_core.calibration.residuals.residual_whiteness`): an rms
+residual above 1.2 or a lag-1 autocorrelation of the whitened residuals
+along frequency above 0.05 (Ljung–Box p < 1e-3) gives a warning that names
+the channels with the largest misfit and, for a fixed chain, the rms a
+longer chain reaches.
 
 Lysmer's analogue (m_f, k_f, d_f; Eq. 2–3) and the Winkler model (k_f, d_f)
 have no coupling: they predict only the loaded area, and are fitted to the
@@ -37,16 +59,26 @@ parts):
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import FitStats, ParameterEstimate, fit_bounded
-from clm_core.calibration.residuals import make_sandwich, misfit, norm_weights, stack_residual
+from clm_core.calibration.lsq import FitStats, ParameterEstimate, Sandwich, fit_bounded
+from clm_core.calibration.residuals import (
+    WhitenessCheck,
+    channel_noise_power,
+    make_sandwich,
+    misfit,
+    norm_weights,
+    residual_layout,
+    residual_whiteness,
+    stack_residual,
+)
 from clm_core.calibration.spectra import TransferData
+from clm_core.calibration.sums import fit_sums
 from clm_core.errors import ParameterError
 from clm_core.params import SoilParams
 from clm_core.soil.chain import CHAIN_PARAMS, chain_response
@@ -56,6 +88,13 @@ Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]
 
 SOIL_FIT_MODELS: tuple[str, ...] = ("clm", "lysmer", "winkler")
+#: First-estimate methods of the CLM fit (:func:`fit_impact`).
+FIRST_ESTIMATES: tuple[str, ...] = ("weighted", "paper")
+#: Residuals pass as noise when their rms (weighted norm) is at most this [-] ...
+WHITE_RMS = 1.2
+#: ... and their lag-1 autocorrelation is at most this [-], or not significant at WHITE_P.
+WHITE_LAG1 = 0.05
+WHITE_P = 1e-3
 SOIL_UNITS: Mapping[str, str] = {"mf": "kg", "kf": "N/m", "df": "N s/m", "kc": "N/m", "dc": "N s/m"}
 _FREE: Mapping[str, tuple[str, ...]] = {
     "clm": ("mf", "kf", "df", "kc", "dc"),
@@ -98,7 +137,16 @@ class SoilFit:
     first_estimate_method : str
         How the starting values were found.
     warnings : tuple of str
-        Identifiability, constraints, fallbacks.
+        Identifiability, constraints, fallbacks, residuals that are not noise.
+    first_estimate_parameters : tuple of ParameterEstimate
+        The first estimate with its own 95 % intervals (noise-weighted sums,
+        :mod:`clm_core.calibration.sums`); () when not computed.
+    chain_selection : {'auto', 'fixed'}
+        Whether the chain length was chosen automatically.
+    chain_trials : tuple of (int, float)
+        (n_areas, rms residual) of every chain length tried.
+    whiteness : WhitenessCheck or None
+        Test of the residuals against the noise model (``weighted`` norm).
     """
 
     model: str
@@ -115,6 +163,10 @@ class SoilFit:
     first_estimate: Mapping[str, float]
     first_estimate_method: str
     warnings: tuple[str, ...]
+    first_estimate_parameters: tuple[ParameterEstimate, ...] = ()
+    chain_selection: str = "fixed"
+    chain_trials: tuple[tuple[int, float], ...] = ()
+    whiteness: WhitenessCheck | None = None
 
 
 def _soil(model: str, values: Mapping[str, float]) -> SoilParams:
@@ -253,6 +305,18 @@ def _admissible(vals: dict[str, float], warns: list[str]) -> dict[str, float]:
     return out
 
 
+@dataclass(frozen=True)
+class _ChainFit:
+    """One refinement at a given chain length (internal)."""
+
+    n_areas: int
+    p: Array
+    est: tuple[ParameterEstimate, ...]
+    stats: FitStats
+    warnings: list[str]
+    r: Array
+
+
 def fit_impact(
     data: TransferData,
     model: str = "clm",
@@ -264,6 +328,10 @@ def fit_impact(
     max_nfev: int = 200,
     ident_rel: float = 0.25,
     cond_max: float = 1e6,
+    interval: str = "inflated",
+    first: str = "weighted",
+    grow_tol: float = 0.005,
+    max_areas: int | None = None,
 ) -> SoilFit:
     """Fit a soil model to the receptances of an impact test.
 
@@ -276,14 +344,29 @@ def fit_impact(
     norm : {'weighted', 'absolute', 'relative', 'log'}
         Error norm (module docstring).
     n_areas : int, optional
-        Areas of the model chain (odd); default 2 max|index| + 1, at least 3.
+        Areas of the model chain (odd, >= 2 max|index| + 1). Default (None):
+        chosen automatically for the CLM (module docstring, "Chain length");
+        2 max|index| + 1 (at least 3) for Lysmer and Winkler.
     initial : mapping, optional
-        Starting values; default: :func:`first_estimate`.
+        Starting values; default: the first estimate (``first``).
     first_data : TransferData, optional
-        Receptances without exponential window for the first estimate
-        (default ``data``; with a window the sums are slightly biased).
+        Receptances without exponential window for the ``paper`` first
+        estimate (default ``data``).
     max_nfev, ident_rel, cond_max
         See :func:`clm_core.calibration.lsq.fit_bounded`.
+    interval : {'inflated', 'noise', 'hac'}
+        Interval method (:mod:`clm_core.calibration.lsq`); ``inflated``
+        groups the residuals by channel.
+    first : {'weighted', 'paper'}
+        First estimate of the CLM: the noise-weighted fit of the Eq. (16)/(18)
+        sums (:func:`clm_core.calibration.sums.fit_sums`, with intervals), or
+        the paper's unweighted route (:func:`first_estimate`).
+    grow_tol : float
+        Automatic chain length: a longer chain is kept while it lowers the
+        rms residual by more than this fraction [-].
+    max_areas : int, optional
+        Automatic chain length: longest chain tried (default
+        2 max|index| + 1 + 8 steps, at most 201).
 
     Returns
     -------
@@ -292,11 +375,14 @@ def fit_impact(
     Raises
     ------
     CalibrationError
-        Unknown model or norm, channels not at areas, no area 0 for
-        Lysmer/Winkler, bad ``n_areas`` or initial values.
+        Unknown model, norm, interval or first-estimate method, channels not
+        at areas, no area 0 for Lysmer/Winkler, bad ``n_areas`` or initial
+        values.
     """
     if model not in SOIL_FIT_MODELS:
         raise CalibrationError(f"model = {model!r}: must be one of {', '.join(SOIL_FIT_MODELS)}")
+    if first not in FIRST_ESTIMATES:
+        raise CalibrationError(f"first = {first!r}: must be one of {', '.join(FIRST_ESTIMATES)}")
     if not data.channels or any(c.location != "area" for c in data.channels):
         bad = [c.name for c in data.channels if c.location != "area"]
         raise CalibrationError(
@@ -304,8 +390,10 @@ def fit_impact(
         )
     idx = [c.index for c in data.channels]
     reach = max(abs(i) for i in idx)
+    n_min = max(3, 2 * reach + 1)
+    auto = n_areas is None and model == "clm"
     if n_areas is None:
-        n_areas = max(3, 2 * reach + 1)
+        n_areas = n_min
     if n_areas % 2 == 0 or n_areas < 2 * reach + 1:
         raise CalibrationError(
             f"n_areas = {n_areas}: must be odd and >= {2 * reach + 1} (the measured areas reach index {reach})"
@@ -316,19 +404,118 @@ def fit_impact(
     fmin, fmax = data.band if data.band[1] > 0 else (float(data.frequency[0]), float(data.frequency[-1]))
     warns: list[str] = []
     free = _FREE[model]
+    fe_params: tuple[ParameterEstimate, ...] = ()
     if initial is None:
-        vals, method, w0 = first_estimate(first_data or data, fmin, fmax, model)
-        warns += w0
+        sums = fit_sums(data) if (model == "clm" and first == "weighted") else None
+        if sums is not None:
+            vals = _admissible(dict(sums.values), warns)
+            method = sums.description
+            fe_params = sums.parameters
+            if sums.noise_ratio > 4.0:
+                warns.append(
+                    f"the impedance sums do not follow the Eq. (16)/(18) form down to the noise (residual power "
+                    f"{sums.noise_ratio:.3g} x the noise): the first estimate's intervals are widened accordingly"
+                )
+        else:
+            if model == "clm" and first == "weighted" and data.std is None:
+                warns.append("no noise estimate: the first estimate uses the paper's unweighted route")
+            vals, method, w0 = first_estimate(first_data or data, fmin, fmax, model)
+            warns += w0
     else:
         missing = [k for k in free if k not in initial]
         if missing:
             raise CalibrationError(f"initial values: {missing} missing for the {model} model (needs {', '.join(free)})")
         vals = _admissible({k: float(initial[k]) for k in free}, warns)
         method = "given by the user"
-    c = n_areas // 2
-    cols_model = [c + idx[k] for k in used]
     W, norm_used, w1 = norm_weights(data, used, norm)
     warns += w1
+    Hd = data.H[:, used]
+    D = (1.0 / Hd) if W is None else W.astype(complex)
+    sandwich = make_sandwich(data, used, D)
+    lines, chans = residual_layout(data.frequency.size, len(used))
+    power = channel_noise_power(data, used, D) if W is not None else None
+    p0 = np.array([vals[k] for k in free])
+
+    def run(n: int, start: Array) -> _ChainFit:
+        return _fit_chain(
+            data, model, n, used, W, start, sandwich, norm_used, max_nfev, ident_rel, cond_max,
+            interval, lines, chans, power,
+        )
+
+    fit = run(n_areas, p0)
+    tried = [(fit.n_areas, fit.stats.rms)]
+    if auto:
+        step = 2 * max(5, (reach + 1) // 2)
+        n_max = max_areas if max_areas is not None else min(201, n_min + 8 * step)
+        while fit.n_areas + step <= n_max:
+            longer = run(fit.n_areas + step, fit.p)
+            tried.append((longer.n_areas, longer.stats.rms))
+            if not longer.stats.rms < fit.stats.rms * (1.0 - grow_tol):
+                break
+            fit = longer
+    warns += fit.warnings
+    n_areas = fit.n_areas
+    p = fit.p
+    white = (
+        residual_whiteness(data, used, D, fit.r)
+        if (norm_used == "weighted" and model == "clm" and W is not None)
+        else None
+    )
+    if white is not None and not _looks_white(fit.stats.rms, white):
+        warns.append(_whiteness_warning(data, used, fit, white, auto, tried, run, grow_tol))
+    soil = _soil(model, dict(zip(free, p)))
+    X, _ = chain_response(soil, n_areas, data.s)
+    c = n_areas // 2
+    cols_all = [c + i for i in idx]
+    Hm_all = X[:, cols_all]
+    mis = misfit(Hm_all[:, used], Hd, W)
+    k0 = [k for k, i in enumerate(idx) if i == 0]
+    W0 = norm_weights(data, k0, norm_used)[0] if k0 else None
+    mis0 = misfit(Hm_all[:, k0], data.H[:, k0], W0) if k0 else math.nan
+    return SoilFit(
+        model=model,
+        soil=soil,
+        parameters=fit.est,
+        stats=fit.stats,
+        norm=norm_used,
+        band=(fmin, fmax),
+        n_areas=n_areas,
+        channels_used=tuple(data.channels[k].name for k in used),
+        H_model=Hm_all,
+        misfit=mis,
+        misfit_loaded=mis0,
+        first_estimate=dict(zip(free, p0.tolist())),
+        first_estimate_method=method,
+        warnings=tuple(warns),
+        first_estimate_parameters=fe_params,
+        chain_selection="auto" if auto else "fixed",
+        chain_trials=tuple(tried),
+        whiteness=white,
+    )
+
+
+def _fit_chain(
+    data: TransferData,
+    model: str,
+    n_areas: int,
+    used: list[int],
+    W: Array | None,
+    p0: Array,
+    sandwich: Sandwich | None,
+    norm_used: str,
+    max_nfev: int,
+    ident_rel: float,
+    cond_max: float,
+    interval: str,
+    lines: NDArray[np.int64],
+    chans: NDArray[np.int64],
+    power: Array | None,
+) -> _ChainFit:
+    """Refine the soil parameters on a chain of ``n_areas`` areas (bounded least squares, Sec. 4.2 constraints)."""
+    free = _FREE[model]
+    idx = [c.index for c in data.channels]
+    c = n_areas // 2
+    cols_model = [c + idx[k] for k in used]
     Hd = data.H[:, used]
     s = data.s
     pick = [CHAIN_PARAMS.index(k) for k in free]
@@ -349,14 +536,10 @@ def fit_impact(
         assert J is not None
         return r, J
 
-    D = (1.0 / Hd) if W is None else W.astype(complex)
-    sandwich = make_sandwich(data, used, D)
-
     n = len(free)
     A = np.eye(n)
     lo = np.zeros(n)
     hi = np.full(n, np.inf)
-    p0 = np.array([vals[k] for k in free])
     for i, k in enumerate(free):
         if k in ("mf", "kf"):
             lo[i] = 1e-6 * abs(p0[i])
@@ -376,29 +559,57 @@ def fit_impact(
         ident_rel=ident_rel,
         cond_max=cond_max,
         sandwich=sandwich,
+        interval=interval,
+        lines=lines,
+        groups=chans,
+        group_power=power,
     )
-    warns += w2
-    soil = _soil(model, dict(zip(free, p)))
-    X, _ = chain_response(soil, n_areas, s)
-    cols_all = [c + i for i in idx]
-    Hm_all = X[:, cols_all]
-    mis = misfit(Hm_all[:, used], Hd, W)
-    k0 = [k for k, i in enumerate(idx) if i == 0]
-    W0 = norm_weights(data, k0, norm_used)[0] if k0 else None
-    mis0 = misfit(Hm_all[:, k0], data.H[:, k0], W0) if k0 else math.nan
-    return SoilFit(
-        model=model,
-        soil=soil,
-        parameters=est,
-        stats=stats,
-        norm=norm_used,
-        band=(fmin, fmax),
-        n_areas=n_areas,
-        channels_used=tuple(data.channels[k].name for k in used),
-        H_model=Hm_all,
-        misfit=mis,
-        misfit_loaded=mis0,
-        first_estimate=dict(zip(free, p0.tolist())),
-        first_estimate_method=method,
-        warnings=tuple(warns),
+    r, _ = residual(p)
+    return _ChainFit(n_areas, p, est, stats, w2, r)
+
+
+def _looks_white(rms: float, w: WhitenessCheck) -> bool:
+    """Residuals pass as the noise: rms <= 1.2 and no lag-1 correlation of the whitened residuals (> 0.05, p < 1e-3)."""
+    return bool(rms <= WHITE_RMS and w.white(WHITE_LAG1, WHITE_P))
+
+
+def _whiteness_warning(
+    data: TransferData,
+    used: list[int],
+    fit: _ChainFit,
+    w: WhitenessCheck,
+    auto: bool,
+    tried: list[tuple[int, float]],
+    run: Callable[[int, Array], _ChainFit],
+    grow_tol: float,
+) -> str:
+    """The warning for residuals that are not the noise, with a chain-length suggestion when it helps."""
+    names = [data.channels[k] for k in used]
+    order = np.argsort(w.channel_rms)[::-1][:3]
+    worst = ", ".join(f"area {names[k].index} ({w.channel_rms[k]:.2g})" for k in order)
+    reach = max(abs(ch.index) for ch in names)
+    at_end = any(abs(names[k].index) >= max(1, reach - 1) for k in order)
+    msg = (
+        f"the residuals are not the measurement noise: rms {fit.stats.rms:.3g} (whitened {w.rms:.3g}; expected about "
+        f"1), lag-1 autocorrelation along frequency {w.lag1:.2f} (Ljung-Box p = {w.p_value:.2g}); largest at {worst}. "
+    )
+    if auto:
+        trials = ", ".join(f"{n}: {r:.3g}" for n, r in tried)
+        return msg + (
+            f"Longer chains did not remove it (areas: rms {trials}): the record is not explained by a CLM chain "
+            "(model error: a real soil, sensor dynamics) or the noise is not white (coloured noise, a noise level "
+            "that changes after the hit); the 95 % intervals are widened by the excess (interval 'inflated')"
+        )
+    step = 2 * max(5, (reach + 1) // 2)
+    longer = run(fit.n_areas + 2 * step, fit.p)
+    if longer.stats.rms < fit.stats.rms * (1.0 - grow_tol):
+        where = " (the misfit is largest at the outer areas)" if at_end else ""
+        return msg + (
+            f"The chain of {fit.n_areas} areas is too short{where}"
+            f": a chain of {longer.n_areas} areas gives rms {longer.stats.rms:.3g}. Use a longer chain "
+            "(options n_areas), or leave n_areas unset to choose it automatically"
+        )
+    return msg + (
+        f"A longer chain ({longer.n_areas} areas: rms {longer.stats.rms:.3g}) does not help: model error or noise that "
+        "is not white; the 95 % intervals are widened by the excess (interval 'inflated')"
     )

@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from clm_core.calibration.errors import CalibrationError
+from clm_core.calibration.lsq import INTERVALS
 from clm_core.calibration.residuals import NORMS
 from clm_core.calibration.signals import SamplingRules
 from clm_core.calibration.spectra import WindowSpec
@@ -43,7 +44,16 @@ class CalibrationOptions:
     compare : bool
         Impact test: also fit the other soil models, for comparison.
     n_areas : int or None
-        Impact test: areas of the model chain (default 2 max|index| + 1).
+        Impact test: areas of the model chain (odd). Default (None): chosen
+        automatically, from 2 max|index| + 1 up while the rms residual falls
+        (:mod:`clm_core.calibration.impact`, "Chain length").
+    first : str
+        Impact test: first estimate of the CLM, ``weighted`` (noise-weighted
+        fit of the Eq. 16/18 sums with intervals, :mod:`clm_core.calibration.sums`)
+        or ``paper`` (the paper's unweighted route, relative norm, no window).
+    interval : str
+        Impact test: how the 95 % intervals are computed, ``inflated``
+        (default), ``noise`` or ``hac`` (:mod:`clm_core.calibration.lsq`).
     n_sleepers : int
         Receptance test: sleepers of the model track (odd).
     fit : tuple of str or None
@@ -87,6 +97,8 @@ class CalibrationOptions:
     model: str = "clm"
     compare: bool = True
     n_areas: int | None = None
+    first: str = "weighted"
+    interval: str = "inflated"
     n_sleepers: int = 41
     fit: tuple[str, ...] | None = None
     soil: str = "fixed"
@@ -120,6 +132,10 @@ class CalibrationOptions:
                 raise CalibrationError(f"{name} = {v!r}: must be a finite number >= 0")
         if self.fmin is not None and self.fmax is not None and not self.fmin < self.fmax:
             raise CalibrationError(f"fmin = {self.fmin:g} Hz, fmax = {self.fmax:g} Hz: need fmin < fmax")
+        if self.first not in ("weighted", "paper"):
+            raise CalibrationError(f"first = {self.first!r}: must be weighted or paper")
+        if self.interval not in INTERVALS:
+            raise CalibrationError(f"interval = {self.interval!r}: must be one of {', '.join(INTERVALS)}")
         if self.n_areas is not None and (self.n_areas < 3 or self.n_areas % 2 == 0):
             raise CalibrationError(f"n_areas = {self.n_areas}: must be odd and >= 3")
         if self.n_sleepers < 3 or self.n_sleepers % 2 == 0:

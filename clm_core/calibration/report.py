@@ -82,8 +82,35 @@ def report_markdown(result: CalibrationResult, files: list[str]) -> str:
         f"- residuals over their noise expectation: {_fmt(s.noise_ratio)}",
         f"- {s.n_residuals} residuals, {s.n_params} parameters, {s.nfev} residual evaluations of the optimiser "
         f"(Jacobians not counted); {s.status}",
-        f"- covariance: {s.covariance}; scaled-Jacobian condition number {s.condition:.3g}",
+        f"- covariance: {s.covariance}, intervals '{s.interval}'; scaled-Jacobian condition number {s.condition:.3g}",
     ]
+    main = r.main_fit
+    if isinstance(main, SoilFit):
+        trials = ", ".join(f"{n} areas: {rr:.4g}" for n, rr in main.chain_trials)
+        lines.append(
+            f"- model chain: {main.n_areas} areas ({main.chain_selection}"
+            + (f"; rms residual of the lengths tried: {trials}" if len(main.chain_trials) > 1 else "")
+            + ")"
+        )
+        if main.whiteness is not None:
+            w = main.whiteness
+            lines.append(
+                f"- residuals whitened by the noise model: rms {w.rms:.3g}, lag-1 autocorrelation {w.lag1:.3f}, "
+                f"Ljung-Box Q = {w.ljung_box:.4g} ({w.lags} lags, p = {w.p_value:.2g}); noise alone gives about 1, 0 "
+                "and p uniform in (0, 1)"
+            )
+        if main.first_estimate_parameters:
+            lines += [
+                "",
+                "## First estimate (Eq. 16/18 sums) with its 95 % intervals",
+                "",
+                "| parameter | value | unit | 95 % interval |",
+                "|---|---|---|---|",
+            ]
+            lines += [
+                f"| {p.name} | {_fmt(p.value)} | {p.unit} | [{_fmt(p.ci_low)}, {_fmt(p.ci_high)}] |"
+                for p in main.first_estimate_parameters
+            ]
     if r.data is not None:
         d = r.data
         snr = d.snr_db[np.isfinite(d.snr_db)]

@@ -125,6 +125,15 @@ class TransferData:
         Relative covariance of the H1 estimate caused by the force-channel
         noise, shared by every channel: Cov(dH_jk, dH_il) = H_jk conj(H_il)
         force_cov[k, l] (the same force record divides every response).
+    line_pcov, force_pcov : (n_f, n_f) complex arrays or None
+        The matching pseudo-covariances E[dH_k dH_l] (no conjugate), with
+        R(k + l) in place of R(k - l). The noise is real, so its spectrum at
+        line k and at line -k are conjugate: for a short window (the force
+        window lasts a few milliseconds) E[N_k N_l] is as large as
+        E[N_k conj(N_l)] and the real and imaginary parts of the residuals
+        do not have equal, uncorrelated variances. Neglecting it
+        underestimated the force-noise part of the parameter covariance by up
+        to a factor 1.4 in standard deviation (issue 14).
     """
 
     frequency: Array
@@ -144,6 +153,8 @@ class TransferData:
     noise_var: Array | None = None
     line_cov: CArray | None = None
     force_cov: CArray | None = None
+    line_pcov: CArray | None = None
+    force_pcov: CArray | None = None
 
     @property
     def s(self) -> CArray:
@@ -162,6 +173,18 @@ class TransferData:
         p = {"displacement": 0, "velocity": 1, "acceleration": 2}[self.channels[j].quantity]
         conv = self.s**p
         return np.asarray(self.noise_var[j] * self.line_cov / np.outer(conv, np.conj(conv)))
+
+    def h_pcov(self, j: int) -> CArray | None:
+        """Pseudo-covariance E[dH_k dH_l] of H[:, j] due to its own sensor noise [(m/N)^2].
+
+        (n_f, n_f) complex, the companion of :meth:`h_cov`; None without a
+        noise estimate.
+        """
+        if self.noise_var is None or self.line_pcov is None:
+            return None
+        p = {"displacement": 0, "velocity": 1, "acceleration": 2}[self.channels[j].quantity]
+        conv = self.s**p
+        return np.asarray(self.noise_var[j] * self.line_pcov / np.outer(conv, conv))
 
 
 def find_hits(force: Array, fs: float, spec: WindowSpec) -> tuple[list[int], int]:
@@ -337,17 +360,25 @@ def transfer_functions(
     sum_w2 = float(np.sum(w_exp**2))
     line_cov = None
     fcov = None
+    line_pcov = None
+    fpcov = None
     if noise_x is not None and noise_f is not None:
         kb = np.nonzero(band)[0]
         dk = (kb[:, None] - kb[None, :]) % L
-        Rm = np.fft.fft(w_exp**2)[dk]  # R(d) = sum w^2 exp(-2 pi j d n / L), d taken modulo L
+        sk = (kb[:, None] + kb[None, :]) % L
+        R2 = np.fft.fft(w_exp**2)  # R(d) = sum w^2 exp(-2 pi j d n / L), d taken modulo L
         Fh = np.array(F_hits)  # (K, n_f)
         SS = np.outer(Sff, Sff)
-        line_cov = Rm * (np.conj(Fh).T @ Fh) / SS  # sum_h conj(F_hk) F_hl R(k - l) / (S_k S_l)
+        line_cov = R2[dk] * (np.conj(Fh).T @ Fh) / SS  # sum_h conj(F_hk) F_hl R(k - l) / (S_k S_l)
+        line_pcov = R2[sk] * (np.conj(Fh).T @ np.conj(Fh)) / SS  # sum_h conj(F_hk) conj(F_hl) R(k + l) / (S_k S_l)
         fcov = np.zeros((kb.size, kb.size), dtype=complex)
+        fpcov = np.zeros((kb.size, kb.size), dtype=complex)
         for Fk, wk in zip(F_hits, wf_hits):
-            fcov += np.fft.fft(wk**2)[dk] * np.outer(np.conj(Fk), Fk)
+            Rw = np.fft.fft(wk**2)
+            fcov += Rw[dk] * np.outer(np.conj(Fk), Fk)
+            fpcov += Rw[sk] * np.outer(np.conj(Fk), np.conj(Fk))
         fcov *= noise_f**2 / SS
+        fpcov *= noise_f**2 / SS
         var_h = noise_x[None, :] ** 2 * np.real(np.diag(line_cov))[:, None] + np.abs(H) ** 2 * np.real(
             np.diag(fcov)
         )[:, None]
@@ -385,6 +416,8 @@ def transfer_functions(
             noise_var=None if noise_x is None else noise_x**2,
             line_cov=line_cov,
             force_cov=fcov,
+            line_pcov=line_pcov,
+            force_pcov=fpcov,
         ),
         warnings,
     )
