@@ -317,8 +317,15 @@ class CalibrationNode(Node):
             goal.abort()
             return CalibrateAction.Result(success=False, message="internal error: unknown goal")
         outcome: CalibrationOutcome = await job.done
+        try:
+            result = action_result(outcome, CalibrateAction.Result)
+        except Exception as exc:  # the goal must end with a result that says what happened
+            self.get_logger().error(traceback.format_exc())
+            outcome = failed(ABORTED, f"internal error of the calibration node: {type(exc).__name__}: {exc}",
+                             job.request)
+            result = action_result(outcome, CalibrateAction.Result)
         self._conclude(job, outcome)
-        return action_result(outcome, CalibrateAction.Result)
+        return result
 
     async def _serve(self, request: Calibrate.Request, response: Calibrate.Response) -> Calibrate.Response:
         """The ``Calibrate`` service: the same queue and code path as a goal, answered when done."""
@@ -369,8 +376,11 @@ class CalibrationNode(Node):
             if outcome.push is not None:
                 p = outcome.push
                 self._last.update(push_target=p.target, push="accepted" if p.accepted else f"failed: {p.reason}")
-        log = self.get_logger().warning if outcome.status == ABORTED else self.get_logger().info
-        log(f"{job.label} {outcome.status}: {outcome.message}")
+        # (one call site per severity: rclpy refuses a severity change at the same call site)
+        if outcome.status == ABORTED:
+            self.get_logger().warning(f"{job.label} {outcome.status}: {outcome.message}")
+        else:
+            self.get_logger().info(f"{job.label} {outcome.status}: {outcome.message}")
         self._pump()
         self.publish_diagnostics()
 
