@@ -90,6 +90,7 @@ fmax: 140.0}"``.
 
 from __future__ import annotations
 
+import os
 import queue
 import signal
 import sys
@@ -145,7 +146,7 @@ NODE_NAME = "clm_calibration_node"
 #: Action and service name, relative to the node (``/clm_calibration_node/calibrate``).
 ACTION_NAME = SERVICE_NAME = "~/calibrate"
 #: How long a shutdown waits for a running fit to stop at its next progress report [s].
-SHUTDOWN_GRACE = 0.8
+SHUTDOWN_GRACE = 0.5
 #: After the last calibration ended, how long a shutdown keeps spinning so its result reaches the client [s].
 FLUSH_S = 0.2
 #: How often queued goals are checked for a cancel request [s].
@@ -562,6 +563,10 @@ class CalibrationNode(Node):
                                        f"{SHUTDOWN_GRACE:g} s ('{run.stage}')", run.request))
         self._inbox.put(None)
 
+    def fit_abandoned(self) -> bool:
+        """True if a fit was abandoned at shutdown and its thread still runs."""
+        return self._worker.is_alive() and self._stop.is_set()
+
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node."""
         self._stop.set()
@@ -588,7 +593,10 @@ def main(args: list[str] | None = None) -> int:
     -------
     int
         0 (also after SIGINT or SIGTERM, within 2 s even mid-fit), or 2 for
-        an invalid parameter at start (e.g. ``default_method``).
+        an invalid parameter at start (e.g. ``default_method``). After a
+        signal that found a fit in a stage longer than
+        :data:`SHUTDOWN_GRACE`, the process ends here with ``os._exit(0)``
+        once ROS is shut down (the fit's thread cannot be interrupted).
     """
     signals: list[int] = []
 
@@ -613,6 +621,7 @@ def main(args: list[str] | None = None) -> int:
             except Exception:  # a callback's error: log it, keep serving
                 node.get_logger().error(traceback.format_exc())
         if signals:
+            t_signal = time.monotonic()
             name = signal.Signals(signals[0]).name
             node.get_logger().info(f"{name}: shutting down")
             node.begin_shutdown()
@@ -621,6 +630,7 @@ def main(args: list[str] | None = None) -> int:
             node.abandon()
             if busy:  # let the results of what was running or waiting reach the clients
                 _spin_until(executor, lambda: len(signals) > 1, FLUSH_S)
+            node.get_logger().info(f"{name}: node stopped {time.monotonic() - t_signal:.3f} s after the signal")
     finally:
         if executor is not None:
             executor.shutdown(timeout_sec=0.5)
@@ -629,6 +639,12 @@ def main(args: list[str] | None = None) -> int:
         rclpy.try_shutdown()
         for s, h in previous.items():
             signal.signal(s, h)
+    if node is not None and node.fit_abandoned():
+        # the fit thread cannot be interrupted and would slow the interpreter's teardown down (it holds the GIL
+        # for much of its work): everything ROS is shut down, so end the process here
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
     return 0
 
 
