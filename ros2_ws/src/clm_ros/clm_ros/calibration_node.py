@@ -457,9 +457,10 @@ class CalibrationNode(Node):
         if not req.push:
             return CalibrationOutcome(SUCCEEDED, one_line(fit_text), result, None, req.context())
         if job.cancel_requested() or self._stop.is_set():
-            why = "canceled" if job.cancel_requested() else "node shutting down"
-            return CalibrationOutcome(CANCELED if why == "canceled" else ABORTED,
-                                      one_line(f"{why} after the fit, before the push: nothing pushed ({fit_text})"),
+            canceled = job.cancel_requested()
+            reason = "canceled" if canceled else "node shutting down"
+            return CalibrationOutcome(CANCELED if canceled else ABORTED,
+                                      one_line(f"{reason} after the fit, before the push: nothing pushed ({fit_text})"),
                                       result, None, req.context())
         self._feedback(job, "pushing", share, f"pushing the fitted parameters to {req.target}")
         push = self._push(result, req.target)
