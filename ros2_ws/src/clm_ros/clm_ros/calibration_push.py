@@ -10,7 +10,8 @@ against its own configuration and takes all of it or none.
 A dying target never blocks the caller longer than the push timeout and
 never raises: the outcome says what happened and the caller keeps serving. A
 target that comes back is reached again by the next push (the service
-client is kept per target and matches the new process by discovery).
+client is kept per target and matches the new process by discovery; an
+unanswered request is sent again every :data:`RETRY_S` within the timeout).
 """
 
 from __future__ import annotations
@@ -35,6 +36,10 @@ from clm_core.params import PARAMETER_DOCS, SOIL_NAMES
 
 #: Poll interval while waiting for a target's service and answer [s]; a stop request is seen this fast.
 POLL_S = 0.02
+#: A request unanswered this long [s] is sent again (within the push timeout): a request sent to a target that
+#: died, while discovery still lists it, is lost; the same request reaches a target that has come back since.
+#: Setting the same values twice is harmless (the set is validated and taken as a whole each time).
+RETRY_S = 1.0
 
 
 def one_line(text: str) -> str:
@@ -247,14 +252,23 @@ class ParameterPusher:
             if self._stop.is_set():
                 return outcome(False, "node shutting down")
             return outcome(False, f"no parameter service {service} within {timeout:g} s (is {target} running?)")
-        future = cli.call_async(SetParametersAtomically.Request(parameters=parameter_messages(values)))
+        request = SetParametersAtomically.Request(parameters=parameter_messages(values))
+        future = cli.call_async(request)
+        sent, attempts = time.monotonic(), 1
         while not future.done():
-            if self._stop.is_set() or time.monotonic() > deadline:
+            now = time.monotonic()
+            if self._stop.is_set() or now > deadline:
                 cli.remove_pending_request(future)
                 future.cancel()
                 if self._stop.is_set():
                     return outcome(False, "node shutting down")
-                return outcome(False, f"{service} did not answer within {timeout:g} s ({target} stopped or is busy)")
+                return outcome(False, f"{service} did not answer within {timeout:g} s ({attempts} request(s); "
+                               f"{target} stopped or is busy)")
+            if now - sent > RETRY_S and cli.service_is_ready():
+                cli.remove_pending_request(future)
+                future.cancel()
+                future = cli.call_async(request)
+                sent, attempts = now, attempts + 1
             time.sleep(POLL_S)
         error = future.exception()
         if error is not None:
