@@ -438,6 +438,7 @@ def test_push_survives_a_dying_track_node(ros_python, client_factory) -> None:  
     track.wait(timeout=10)
     status, res, _ = c.calibrate(IMPACT_BAG, **push)
     _check_aborted(status, res, "fit succeeded but the push to /clm_track_node failed")
+    print(f"push to the killed track node: {res.push_reason}")
     assert ("did not answer within 4 s" in res.push_reason or "no parameter service" in res.push_reason), res
     assert res.push_requested and not res.push_accepted and list(res.names) == ["mf", "kf", "df", "kc", "dc"]
     st, v = c.last_diag(lambda v: v.get("last_push", "").startswith("failed"), "a failed push")
