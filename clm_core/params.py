@@ -421,6 +421,26 @@ def load_model(
     return mp
 
 
+def model_from_settings(
+    track: str | Path = "mevergnies",
+    soil: str | Path | None = "mevergnies",
+    model: SoilModel = "clm",
+    params_file: str | Path | None = None,
+    overrides: Mapping[str, float] | None = None,
+) -> ModelParams:
+    """The model that the run settings ``track``, ``soil``, ``model`` and ``params_file`` describe.
+
+    A full parameter file (``params_file``) replaces the three presets;
+    ``overrides`` (``{name: value}``, :meth:`ModelParams.override`) apply on
+    top of either. The one rule of ``clm simulate``, ``clm receptance`` and
+    ``clm study``.
+    """
+    if params_file:
+        mp = load_params_file(params_file)
+        return mp.override(**overrides) if overrides else mp
+    return load_model(track, soil, model, overrides)
+
+
 def load_params_file(path: str | Path) -> ModelParams:
     """Load a full parameter file (rail, track, soil, overrides)."""
     p = Path(path)
