@@ -91,17 +91,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def report(outcome: Any, what: str) -> None:
+def report(outcome: Any, what: str, unit: str = "cases") -> None:
     """The closing lines of ``clm study`` and ``clm calibrate FOLDER``."""
     e = outcome.engine
     where = ("nothing to run" if e.kind == "none" else
              f"on {'a local cluster' if e.kind == 'local' else 'the scheduler ' + e.address} of {e.workers} "
              f"worker{'s' if e.workers != 1 else ''}")
     rate = outcome.cases_per_minute
-    rate_text = f", {rate:.3g} cases/min" if rate else ""
+    rate_text = f", {rate:.3g} {unit}/min" if rate else ""
     n = len(outcome.rows)
-    print(f"{what}: {n} cases ({outcome.computed} run, {outcome.reused} reused) {where} in "
+    print(f"{what}: {n} {unit} ({outcome.computed} run, {outcome.reused} reused) {where} in "
           f"{quantity(outcome.elapsed_s, 's', 3)}{rate_text}; {n - outcome.failed} ok, {outcome.failed} failed")
     for r in [r for r in outcome.rows if r.get("status") != "ok"][:5]:
-        print(f"  case {r['case']}: {r.get('status')}: {r.get('error')}")
+        print(f"  {r.get('bag') or 'case ' + str(r['case'])}: {r.get('status')}: {r.get('error')}")
     print("  -> " + ", ".join(str(f) for f in outcome.files))

@@ -36,6 +36,15 @@ WORKER_WAIT_S = 60.0
 START_TIMEOUT_S = 120.0
 
 
+def _distributed() -> Any:
+    """The ``distributed`` module (imported on first use only)."""
+    try:
+        import distributed
+    except ImportError as exc:  # pragma: no cover - a declared dependency
+        raise InputError(f"studies need dask.distributed ({exc}); pip install 'dask[distributed]'") from None
+    return distributed
+
+
 @dataclass(frozen=True)
 class Task:
     """One unit of work: ``func(*args)`` returns a row (a dict).
@@ -98,18 +107,15 @@ class Engine:
         self._client: Any = None
 
     def __enter__(self) -> Engine:
-        try:
-            from distributed import Client, LocalCluster
-        except ImportError as exc:  # pragma: no cover - a declared dependency
-            raise InputError(f"studies need dask.distributed ({exc}); pip install 'dask[distributed]'") from None
+        dist = _distributed()
         try:
             if self.scheduler:
-                self._open_remote(Client)
+                self._open_remote(dist.Client)
             else:
                 n = self.workers or os.cpu_count() or 1
-                self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                self._cluster = dist.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                              dashboard_address=None, silence_logs=logging.ERROR)
-                self._client = Client(self._cluster, timeout=f"{START_TIMEOUT_S}s")
+                self._client = dist.Client(self._cluster, timeout=f"{START_TIMEOUT_S}s")
                 self._client.wait_for_workers(n, timeout=START_TIMEOUT_S)
                 self.info = EngineInfo("local", str(self._cluster.scheduler_address), n)
             if self.warm is not None:
@@ -163,8 +169,7 @@ class Engine:
         scheduler lost it) calls ``done(task, None, reason)`` instead. The
         tasks' own failures are inside their rows (they never raise).
         """
-        from distributed import as_completed
-
+        as_completed = _distributed().as_completed
         if self._client is None:
             raise ClmError("Engine.run outside its with-block")
         nonce = uuid.uuid4().hex[:8]

@@ -145,9 +145,10 @@ class StudySpec:
             g = dict(zip(self.grid, point))
             for d in draws:
                 values = {**g, **d}
-                where = f"{self.source}: case {len(out)} ({_describe(values)})"
+                where = f"{self.source}: case {len(out)} ({_describe(values)}): "
                 case_settings = check_settings({**self.fixed, **values}, where)
-                out.append(Case(len(out), values, case_settings, case_key(case_settings)))
+                out.append(Case(len(out), {k: case_settings[k] for k in values}, case_settings,
+                                case_key(case_settings)))
         return out
 
     def _draws(self) -> list[dict[str, Any]]:
@@ -225,14 +226,13 @@ def parse_study(data: Any, source: str = "study") -> StudySpec:
         if k in vary:
             raise ParameterError(f"{source}: {k} is in the grid and in the sample; give it in one place")
     # every value alone (the combinations are checked again when the cases are built)
-    check_settings(fixed, f"{source}: settings")
+    fixed = check_settings(fixed, f"{source}: settings.")
     for k, vals in grid.items():
-        for i, v in enumerate(vals):
-            check_settings({k: v}, f"{source}: grid.{k}[{i}]")
+        grid[k] = [_check_one(k, v, f"{source}: grid.{k}[{i}]") for i, v in enumerate(vals)]
     for k, (dist, args) in vary.items():
         if dist == "choice":
             for i, v in enumerate(args):
-                check_settings({k: v}, f"{source}: sample.vary.{k}.choice[{i}]")
+                _check_one(k, v, f"{source}: sample.vary.{k}.choice[{i}]")
     count = math.prod(len(v) for v in grid.values()) * (n if vary else 1)
     if count > MAX_CASES:
         raise ParameterError(f"{source}: {count} cases: at most {MAX_CASES}")
@@ -352,38 +352,39 @@ def _sample(sample: Mapping[str, Any], where: str) -> tuple[int, int, dict[str, 
     return n, seed, vary
 
 
-def check_settings(values: Mapping[str, Any], where: str) -> dict[str, Any]:
+def check_settings(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     """Check ``{name: value}`` of a case with the rules of :mod:`clm_core.settings`; return them normalised.
 
-    ``train`` may be a list of names or a comma-separated string (kept as the
-    string); ``defects`` a list of defect specifications or one string (kept
-    as a tuple); presets must exist (or be files).
+    Messages name ``<prefix><name>``. ``train`` may be a list of names or a
+    comma-separated string (kept as the string); ``defects`` a list of defect
+    specifications or one string (kept as a tuple); presets must exist (or
+    be files).
     """
+    return {name: _check_one(name, value, f"{prefix}{name}") for name, value in values.items()}
+
+
+def _check_one(name: str, value: Any, label: str) -> Any:
+    """One checked, normalised value of the setting ``name`` (errors say ``label = value: rule``)."""
     from clm_core.vehicle.irregularity import parse_defect
 
-    out: dict[str, Any] = {}
-    for name, value in values.items():
-        label = f"{where}: {name}"
-        if name == "defects":
-            items = (value,) if isinstance(value, str) else value
-            if not isinstance(items, (list, tuple)) or not all(isinstance(s, str) for s in items):
-                raise ParameterError(f"{label} = {value!r}: expected a list of defect specifications (strings)")
-            for s in items:
-                try:
-                    parse_defect(s)
-                except ParameterError as exc:
-                    raise ParameterError(f"{label}: {exc}") from None
-            out[name] = tuple(items)
-            continue
-        if name == "train" and isinstance(value, list):
-            value = ",".join(str(s) for s in value)
-        if name == "n_sleepers":
-            out[name] = settings.N_SLEEPERS.check(value, label)
-            continue
-        out[name] = settings.setting(name).check(value, label)
-        if name in ("track", "soil", "vehicle"):
-            _check_preset(name, str(out[name]), label)
-    return out
+    if name == "defects":
+        items = (value,) if isinstance(value, str) else value
+        if not isinstance(items, (list, tuple)) or not all(isinstance(s, str) for s in items):
+            raise ParameterError(f"{label} = {value!r}: expected a list of defect specifications (strings)")
+        for s in items:
+            try:
+                parse_defect(s)
+            except ParameterError as exc:
+                raise ParameterError(f"{label}: {exc}") from None
+        return tuple(items)
+    if name == "train" and isinstance(value, list):
+        value = ",".join(str(s) for s in value)
+    if name == "n_sleepers":
+        return settings.N_SLEEPERS.check(value, label)
+    v = settings.setting(name).check(value, label)
+    if name in ("track", "soil", "vehicle"):
+        _check_preset(name, str(v), label)
+    return v
 
 
 def _check_preset(kind: str, value: str, label: str) -> None:

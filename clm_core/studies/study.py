@@ -165,33 +165,37 @@ def execute(items: Sequence[Item], out: Path, *, scheduler: str | None = None, w
     if reused and log is not None:
         log(f"{desc}: resuming: {reused} of {len(items)} cases already done in {store.dir}, {len(todo)} to run")
     by_key = {it.task.key: it for it in todo}
+    failed = [0]
+
+    def done(bar: Progress, task: Task, row: Mapping[str, Any] | None, reason: str) -> None:
+        it = by_key[task.key]
+        if row is None:
+            lost[task.key] = reason
+            if "KilledWorker" not in reason:  # the scheduler lost it: run again on resumption
+                bar.update(1)
+                return
+            row = {"status": "error", "error": f"the case killed its worker process ({reason})"}
+        rec = {"key": task.key, "index": it.index, "columns": it.columns, **it.record, "row": dict(row),
+               "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), "clm_core": __version__}
+        store.put(rec)
+        records[task.key] = rec
+        bar.update(1)
+        if row.get("status") != "ok":
+            failed[0] += 1
+            bar.stage(f"{failed[0]} failed")
+
     info = EngineInfo(kind="none")
     t0 = time.perf_counter()
     try:
         if todo:
-            with Engine(scheduler, workers, warm) as engine, Progress(len(todo), desc, unit="case") as bar:
-                info = engine.info
-                t0 = time.perf_counter()
+            with Progress(len(todo), desc, unit="case") as bar:
+                bar.stage("starting the engine")
+                with Engine(scheduler, workers, warm) as engine:
+                    info = engine.info
+                    bar.stage(f"{info.workers} worker{'s' if info.workers != 1 else ''}")
+                    t0 = time.perf_counter()
+                    engine.run([it.task for it in todo], lambda t, r, why: done(bar, t, r, why))
 
-                def done(task: Task, row: Mapping[str, Any] | None, reason: str) -> None:
-                    it = by_key[task.key]
-                    if row is None:
-                        lost[task.key] = reason
-                        if "KilledWorker" not in reason:  # the scheduler lost it: run again on resumption
-                            bar.update(1)
-                            return
-                        row = {"status": "error", "error": f"the case killed its worker process ({reason})"}
-                    rec = {"key": task.key, "index": it.index, "columns": it.columns, **it.record, "row": dict(row),
-                           "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                           "clm_core": __version__}
-                    store.put(rec)
-                    records[task.key] = rec
-                    bar.update(1)
-                    failed = sum(1 for r in records.values() if r["row"].get("status") != "ok")
-                    if failed:
-                        bar.stage(f"{failed} failed")
-
-                engine.run([it.task for it in todo], done)
     except KeyboardInterrupt:
         outcome = _finish(items, records, lost, out, lead, table, reused, t0, info)
         raise StudyInterrupted(

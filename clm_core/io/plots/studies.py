@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from matplotlib.axes import Axes
 
-from clm_core.io.plots._base import legend, new_figure, save, style
+from clm_core.io.plots._base import Array, figure_legend, legend, new_figure, save, style
 
 #: Most groups (curves) drawn in one panel; beyond that a spread selection, said in the title.
 MAX_CURVES = 8
@@ -38,8 +38,8 @@ def _spread(n: int, most: int = MAX_CURVES) -> list[int]:
     return sorted({int(i) for i in np.linspace(0, n - 1, most).round()})
 
 
-def _values(rows: Sequence[Mapping[str, Any]], metric: str) -> np.ndarray[Any, np.dtype[np.float64]]:
-    v = np.array([np.nan if r.get(metric) is None else float(r[metric]) for r in rows], dtype=float)
+def _values(rows: Sequence[Mapping[str, Any]], metric: str) -> Array:
+    v: Array = np.array([np.nan if r.get(metric) is None else float(r[metric]) for r in rows], dtype=float)
     return v[np.isfinite(v)]
 
 
@@ -105,7 +105,7 @@ def plot_critical_speed(rows: Sequence[Mapping[str, Any]], varied: Sequence[str]
     return out
 
 
-def _exceedance(ax: Axes, values: np.ndarray[Any, np.dtype[np.float64]], label: str, j: int) -> None:
+def _exceedance(ax: Axes, values: Array, label: str, j: int) -> None:
     x = np.sort(values)
     p = 1.0 - np.arange(x.size) / x.size  # fraction of the seeds with a value >= x
     ax.step(x, p, where="post", color=f"C{j % 10}", marker=_MARKERS[j % len(_MARKERS)], ms=3, label=label)
@@ -133,7 +133,7 @@ def plot_exceedance(rows: Sequence[Mapping[str, Any]], varied: Sequence[str], pa
     names = list(groups)
     shown = _spread(len(names))
     with style():
-        fig, axs = new_figure(1, 2, (10.0, 4.6), sharey=True)
+        fig, axs = new_figure(1, 2, (10.0, 5.2), sharey=True)
         ax1, ax2 = axs[0]
         for j, gi in enumerate(shown):
             g = groups[names[gi]]
@@ -143,10 +143,11 @@ def plot_exceedance(rows: Sequence[Mapping[str, Any]], varied: Sequence[str], pa
         ax1.set_xlabel("peak sleeper soil force [kN]")
         ax2.set_xlabel("peak wheel load [kN]")
         ax1.set_ylabel("exceedance probability [-]")
+        ax2.set_ylabel("exceedance probability [-]")
         ax1.set_ylim(0.0, 1.05)
         more = f" ({len(shown)} of {len(names)} groups)" if len(shown) < len(names) else ""
         fig.suptitle((title + ": " if title else "") + f"exceedance over the irregularity seeds{more}", fontsize=9.5)
-        legend(ax2, "upper right")
+        figure_legend(fig, [ax1])
         out = save(fig, path)
     return out
 
