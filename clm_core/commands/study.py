@@ -47,16 +47,18 @@ def _positive_int(text: str) -> int:
     return n
 
 
+_DESCRIPTION = (
+    "Run a parametric study: a grid or a seeded random sample over speeds, soils, track and soil parameters, "
+    "vehicles and irregularity seeds, each case a coupled vehicle-track run (clm simulate --vehicle). Local dask "
+    "cluster by default (one worker process per core), or a remote dask.distributed scheduler. Resumable: the same "
+    "command after an interruption runs only the missing cases. Format of STUDY.yaml: docs/studies.md."
+)
+
+
 def register(sub: Any) -> None:
     """Add the ``study`` sub-command."""
-    p = sub.add_parser(
-        "study", help="parametric study (grid or random sample of vehicle runs) on dask.distributed",
-        description="Run a parametric study: a grid or a seeded random sample over speeds, soils, track and soil "
-        "parameters, vehicles and irregularity seeds, each case a coupled vehicle-track run (clm simulate "
-        "--vehicle). Local dask cluster by default (one worker process per core), or a remote dask.distributed "
-        "scheduler. Resumable: the same command after an interruption runs only the missing cases. Format of "
-        "STUDY.yaml: docs/studies.md.",
-    )
+    help_text = "parametric study (grid or random sample of vehicle runs) on dask.distributed"
+    p = sub.add_parser("study", help=help_text, description=_DESCRIPTION)
     p.add_argument("study", metavar="STUDY.yaml", help="study file (docs/studies.md; examples/studies/)")
     p.add_argument("--out", default=None, help="output directory (an earlier run's directory is resumed); required "
                    "unless --dry-run")

@@ -37,30 +37,24 @@ START_TIMEOUT_S = 120.0
 
 
 def _distributed() -> Any:
-    """The ``distributed`` module (imported on first use only)."""
+    """The ``distributed`` module, imported on first use (a declared dependency; the message says how to add it)."""
+    import importlib
+
     try:
-        import distributed
-    except ImportError as exc:  # pragma: no cover - a declared dependency
+        return importlib.import_module("distributed")
+    except ImportError as exc:  # pragma: no cover
         raise InputError(f"studies need dask.distributed ({exc}); pip install 'dask[distributed]'") from None
-    return distributed
 
 
 @dataclass(frozen=True)
 class Task:
-    """One unit of work: ``func(*args)`` returns a row (a dict).
+    """One unit of work: ``func(*args)`` returns a row (a dict)."""
 
-    Attributes
-    ----------
-    key : str
-        Identity (the result store's key).
-    func : callable
-        Importable function (pickled by reference).
-    args : tuple
-        Its arguments (plain data).
-    """
-
+    #: Identity of the work (the result store's key).
     key: str
+    #: An importable function (pickled by reference, so remote workers need clm_core installed).
     func: Callable[..., dict[str, Any]]
+    #: Its arguments (plain data).
     args: tuple[Any, ...] = ()
 
 

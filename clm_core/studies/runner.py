@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import socket
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -74,11 +74,20 @@ def run_case(case_settings: Mapping[str, Any]) -> dict[str, Any]:
     'error'`` and ``error = '<ExceptionType>: <message>'`` with the metrics
     None (the study goes on).
     """
-    t0, c0 = time.perf_counter(), time.process_time()
     row: dict[str, Any] = dict.fromkeys(SUMMARY_METRICS)
-    try:
+
+    def work() -> None:
         summary = simulate_case(case_settings)
         row.update({m: summary[m] for m in SUMMARY_METRICS})
+
+    return _timed(work, row)
+
+
+def _timed(work: Callable[[], None], row: dict[str, Any]) -> dict[str, Any]:
+    """Run ``work`` (which fills ``row``), then add :data:`RUN_COLUMNS` and ``worker``; never raises for it."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        work()
         status, error = "ok", ""
     except Exception as exc:  # a failing case is reported in its row; the study goes on
         status, error = "error", f"{type(exc).__name__}: {exc}"
@@ -123,10 +132,10 @@ def calibrate_bag(bag: str, method: str, options: Mapping[str, Any], out_dir: st
     from clm_core.calibration.options import CalibrationOptions
     from clm_core.calibration.report import write_outputs
 
-    t0, c0 = time.perf_counter(), time.process_time()
     row: dict[str, Any] = {"bag": Path(bag).name, "method": method, "model": None, "misfit": None,
                            "rms_residual": None}
-    try:
+
+    def work() -> None:
         result = calibrate(bag, method, CalibrationOptions.from_mapping(options), allow_partial=allow_partial)
         row.update(model=result.model, misfit=result.misfit, rms_residual=result.stats.rms)
         for p in result.parameters:
@@ -139,9 +148,5 @@ def calibrate_bag(bag: str, method: str, options: Mapping[str, Any], out_dir: st
             if final.exists():
                 shutil.rmtree(final)
             tmp.rename(final)
-        status, error = "ok", ""
-    except Exception as exc:  # a failing bag is reported in its row; the others go on
-        status, error = "error", f"{type(exc).__name__}: {exc}"
-    row.update(wall_time_s=time.perf_counter() - t0, cpu_time_s=time.process_time() - c0, status=status,
-               error=error, worker=worker_name())
-    return row
+
+    return _timed(work, row)

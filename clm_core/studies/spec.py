@@ -191,16 +191,9 @@ def load_study(path: str | Path) -> StudySpec:
         Not found, not YAML, or any key or value that breaks a rule (the
         message names the file, the key, the value and the rule).
     """
-    import yaml
+    from clm_core.params import read_yaml_mapping
 
-    p = Path(path)
-    if not p.is_file():
-        raise ParameterError(f"study file {str(p)!r} not found")
-    try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise ParameterError(f"{p}: not valid YAML ({exc})") from None
-    return parse_study(data, str(p))
+    return parse_study(read_yaml_mapping(path, "study file"), str(path))
 
 
 def parse_study(data: Any, source: str = "study") -> StudySpec:

@@ -44,23 +44,15 @@ class StudyInterrupted(ClmError):
 
 @dataclass(frozen=True)
 class Item:
-    """One row to produce: a task, its place in the table and what the store keeps with it.
+    """One row to produce: a task, its place in the table and what the store keeps with it."""
 
-    Attributes
-    ----------
-    index : int
-        Row number.
-    task : Task
-        The work (its ``key`` is the store's key).
-    columns : dict
-        The row's leading columns (the case's parameters, or the bag).
-    record : dict
-        Extra fields of the stored record (settings, the command of the same run alone).
-    """
-
+    #: Row number (the case's index).
     index: int
+    #: The work; its ``key`` is the store's key.
     task: Task
+    #: The row's leading columns: the case's varied parameters, or the bag.
     columns: dict[str, Any]
+    #: Extra fields of the stored record: the settings, the command of the same run alone.
     record: dict[str, Any] = field(default_factory=dict)
 
 

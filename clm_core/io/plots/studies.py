@@ -56,11 +56,11 @@ def plot_critical_speed(rows: Sequence[Mapping[str, Any]], varied: Sequence[str]
     rows : sequence of mapping
         Study rows (``speed``, ``peak_sleeper_soil_force_N``, ``max_rail_deflection_m``, ``status``).
     varied : sequence of str
-        The study's varied parameters.
-    path : path
-        PNG file.
-    title : str
-        Figure title.
+        The study's varied parameters (``speed`` among them).
+    path : str or Path
+        The PNG file to write.
+    title : str, optional
+        Put before the figure's own title (the study's name).
 
     Returns
     -------
