@@ -35,6 +35,20 @@ WORKER_WAIT_S = 60.0
 #: How long the local cluster may take to start [s].
 START_TIMEOUT_S = 120.0
 
+#: dask settings of the local cluster's workers: the cases are long compute-bound calls, so the worker's own
+#: sampling of itself is switched off or slowed down (the statistical profiler alone took ~25 % of a case's wall
+#: time), and glibc keeps its default heap trimming (dask's 64 KiB threshold made every run fault its large
+#: arrays in again: 5x the page faults). One BLAS/OpenMP thread per worker, as dask's default. A remote cluster
+#: has its workers' own settings (docs/studies.md says how to set the same).
+WORKER_CONFIG: dict[str, Any] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.system-monitor.gil.enabled": False,
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1,
+                                            "NUMBA_NUM_THREADS": 1},
+}
+
 
 def _distributed() -> Any:
     """The ``distributed`` module, imported on first use (a declared dependency; the message says how to add it)."""
@@ -44,6 +58,14 @@ def _distributed() -> Any:
         return importlib.import_module("distributed")
     except ImportError as exc:  # pragma: no cover
         raise InputError(f"studies need dask.distributed ({exc}); pip install 'dask[distributed]'") from None
+
+
+def _process_cpu() -> float:
+    """User + system CPU time of this process [s] (runs on a worker)."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 @dataclass(frozen=True)
@@ -106,9 +128,13 @@ class Engine:
             if self.scheduler:
                 self._open_remote(dist.Client)
             else:
+                import dask
+
                 n = self.workers or os.cpu_count() or 1
-                self._cluster = dist.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                             dashboard_address=None, silence_logs=logging.ERROR)
+                with dask.config.set(WORKER_CONFIG):
+                    self._cluster = dist.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                                      host="127.0.0.1", dashboard_address=None,
+                                                      silence_logs=logging.ERROR)
                 self._client = dist.Client(self._cluster, timeout=f"{START_TIMEOUT_S}s")
                 self._client.wait_for_workers(n, timeout=START_TIMEOUT_S)
                 self.info = EngineInfo("local", str(self._cluster.scheduler_address), n)
@@ -155,6 +181,12 @@ class Engine:
                 self._cluster.close()
             finally:
                 self._cluster = None
+
+    def worker_cpu(self) -> float:
+        """CPU time used so far by the worker processes, all threads, summed [s] (``getrusage``)."""
+        if self._client is None:
+            return 0.0
+        return float(sum(self._client.run(_process_cpu).values()))
 
     def run(self, tasks: Sequence[Task], done: Callable[[Task, Mapping[str, Any] | None, str], None]) -> None:
         """Run every task; call ``done(task, row, '')`` as each finishes, in completion order.

@@ -68,6 +68,9 @@ class Outcome:
     computed: int
     elapsed_s: float
     engine: EngineInfo
+    #: CPU time of the engine phase [s]: ``client`` (this process: the client, and the scheduler of a local
+    #: cluster) and ``workers`` (every worker process, all threads); empty when nothing ran.
+    cpu_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def failed(self) -> int:
@@ -177,7 +180,8 @@ def execute(items: Sequence[Item], out: Path, *, scheduler: str | None = None, w
             bar.stage(f"{failed[0]} failed")
 
     info = EngineInfo(kind="none")
-    t0 = time.perf_counter()
+    t0 = t1 = time.perf_counter()
+    cpu: dict[str, float] = {}
     try:
         if todo:
             with Progress(len(todo), desc, unit="case") as bar:
@@ -185,21 +189,23 @@ def execute(items: Sequence[Item], out: Path, *, scheduler: str | None = None, w
                 with Engine(scheduler, workers, warm) as engine:
                     info = engine.info
                     bar.stage(f"{info.workers} worker{'s' if info.workers != 1 else ''}")
-                    t0 = time.perf_counter()
+                    w0, d0, t0 = engine.worker_cpu(), time.process_time(), time.perf_counter()
                     engine.run([it.task for it in todo], lambda t, r, why: done(bar, t, r, why))
+                    t1 = time.perf_counter()
+                    cpu.update(client=time.process_time() - d0, workers=engine.worker_cpu() - w0)
 
     except KeyboardInterrupt:
-        outcome = _finish(items, records, lost, out, lead, table, reused, t0, info)
+        outcome = _finish(items, records, lost, out, lead, table, reused, time.perf_counter() - t0, info, cpu)
         raise StudyInterrupted(
             f"interrupted: {len(records)} of {len(items)} cases done and stored in {store.dir}; run the same command "
             f"again to finish the study (partial table in {outcome.files[1]})"
         ) from None
-    return _finish(items, records, lost, out, lead, table, reused, t0, info)
+    return _finish(items, records, lost, out, lead, table, reused, t1 - t0, info, cpu)
 
 
 def _finish(items: Sequence[Item], records: Mapping[str, Mapping[str, Any]], lost: Mapping[str, str], out: Path,
-            lead: Sequence[str], table: str, reused: int, t0: float, info: EngineInfo) -> Outcome:
-    elapsed = time.perf_counter() - t0
+            lead: Sequence[str], table: str, reused: int, elapsed: float, info: EngineInfo,
+            cpu: dict[str, float]) -> Outcome:
     rows: list[dict[str, Any]] = []
     for it in items:
         rec = records.get(it.task.key)
@@ -213,7 +219,7 @@ def _finish(items: Sequence[Item], records: Mapping[str, Mapping[str, Any]], los
         rows.append({"case": it.index, **it.columns, **body, "case_key": it.task.key})
     columns = columns_of(rows, ["case", *lead], [*RUN_COLUMNS, "case_key"])
     files = write_table(rows, columns, out, table)
-    return Outcome(out, rows, columns, files, reused, len(records) - reused, elapsed, info)
+    return Outcome(out, rows, columns, files, reused, len(records) - reused, elapsed, info, cpu)
 
 
 # ----------------------------------------------------------------------------- clm study
@@ -281,7 +287,8 @@ def run_study(spec: StudySpec, out: str | Path, *, scheduler: str | None = None,
 def _summary(o: Outcome) -> dict[str, Any]:
     return {
         "ok": len(o.rows) - o.failed, "failed": o.failed, "reused": o.reused, "computed": o.computed,
-        "elapsed_s": o.elapsed_s, "cases_per_minute": o.cases_per_minute, "engine": o.engine.as_dict(),
+        "elapsed_s": o.elapsed_s, "cases_per_minute": o.cases_per_minute, "engine_cpu_s": o.cpu_s,
+        "engine": o.engine.as_dict(),
         "files": [f.name for f in o.files], "clm_core": __version__,
         "peak_exclusion": "peaks exclude the start-up transient and the sleepers not fully passed, as clm simulate "
                           "(clm_core.peaks; the rule is in each run's summary.json: clm simulate with the case's "
