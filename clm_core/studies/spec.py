@@ -35,6 +35,7 @@ import hashlib
 import itertools
 import json
 import math
+import re
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
@@ -260,7 +261,19 @@ def _check_name(name: str, where: str) -> None:
 _PARAMETER_SHORT = {k.split(".", 1)[1]: k for k in settings.MODEL_PARAMETERS}
 
 
+#: A number written as YAML 1.2 reads it; PyYAML (YAML 1.1) leaves ``5e6`` or ``2.5e6`` (no exponent sign) a string.
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+def _yaml_number(v: Any) -> Any:
+    """``v`` as a float if it is a string that YAML 1.2 reads as a number (``5e6``), else unchanged."""
+    if isinstance(v, str) and _NUMBER.fullmatch(v.strip()):
+        return float(v)
+    return v
+
+
 def _number(v: Any, where: str) -> float:
+    v = _yaml_number(v)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise ParameterError(f"{where} = {v!r}: must be a finite number")
     return float(v)
@@ -373,8 +386,11 @@ def _check_one(name: str, value: Any, label: str) -> Any:
     if name == "train" and isinstance(value, list):
         value = ",".join(str(s) for s in value)
     if name == "n_sleepers":
-        return settings.N_SLEEPERS.check(value, label)
-    v = settings.setting(name).check(value, label)
+        return settings.N_SLEEPERS.check(_yaml_number(value), label)
+    s = settings.setting(name)
+    if s.kind in (int, float):
+        value = _yaml_number(value)
+    v = s.check(value, label)
     if name in ("track", "soil", "vehicle"):
         _check_preset(name, str(v), label)
     return v

@@ -127,3 +127,15 @@ def test_shipped_examples_are_valid(name: str) -> None:
     assert cases
     if name == "smoke.yaml":
         assert len(cases) <= 8 and all(c.settings["duration"] <= 0.2 for c in cases)
+
+
+def test_numbers_without_exponent_sign_are_numbers(tmp_path: Path) -> None:
+    # PyYAML reads 5e6 and 2.5e6 as strings (YAML 1.1); a study reads them as numbers, as YAML 1.2 does
+    f = tmp_path / "s.yaml"
+    f.write_text("settings:\n  soil.kf: 5e6\n  duration: 2e-1\n"
+                 "sample:\n  n: 3\n  seed: 1\n  vary:\n    soil.kc: {loguniform: [7.5e6, 3e7]}\n")
+    cases = load_study(f).cases()
+    assert cases[0].settings["soil.kf"] == 5e6 and cases[0].settings["duration"] == 0.2
+    assert all(7.5e6 <= c.values["soil.kc"] <= 3e7 for c in cases)
+    with pytest.raises(ParameterError, match=r"settings.duration = 'fast': must be a real number"):
+        parse_study({"settings": {"duration": "fast"}}, "s").cases()
