@@ -35,12 +35,14 @@ WORKER_WAIT_S = 60.0
 #: How long the local cluster may take to start [s].
 START_TIMEOUT_S = 120.0
 
-#: dask settings of the local cluster's workers: the cases are long compute-bound calls, so the worker's own
-#: sampling of itself is switched off or slowed down (the statistical profiler alone took ~25 % of a case's wall
-#: time), and glibc keeps its default heap trimming (dask's 64 KiB threshold made every run fault its large
-#: arrays in again: 5x the page faults). One BLAS/OpenMP thread per worker, as dask's default. A remote cluster
-#: has its workers' own settings (docs/studies.md says how to set the same).
+#: dask settings of the local cluster (scheduler, nannies, workers): the cases are long compute-bound calls, so
+#: the servers' sampling of themselves is switched off or slowed down (the statistical profiler alone took ~25 %
+#: of a case's wall time; the 20-ms event-loop tick cost an idle worker 18 ms of CPU per second, 4 ms at 200 ms),
+#: and glibc keeps its default heap trimming (dask's 64 KiB threshold made every run fault its large arrays in
+#: again: 5x the page faults). One BLAS/OpenMP thread per worker, as dask's default. A remote cluster has its
+#: own settings (docs/studies.md says how to set the same).
 WORKER_CONFIG: dict[str, Any] = {
+    "distributed.admin.tick.interval": "200ms",
     "distributed.worker.profile.enabled": False,
     "distributed.admin.system-monitor.gil.enabled": False,
     "distributed.admin.system-monitor.interval": "2s",

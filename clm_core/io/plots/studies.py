@@ -91,7 +91,7 @@ def plot_critical_speed(rows: Sequence[Mapping[str, Any]], varied: Sequence[str]
                 if np.any(hi > lo):
                     ax.fill_between(x, lo, hi, color=color, alpha=0.18, lw=0)
                 ax.plot(x, mean, marker=_MARKERS[j % len(_MARKERS)], ms=4, color=color,
-                        label=_label(keys, names[gi]))
+                        label=_label(keys, names[gi]) if keys else "mean over the seeds")
         n_seeds = max(len(v) for g in groups.values() for v in _groups(g, ["speed"]).values())
         ax1.set_ylabel("peak sleeper soil force [kN]")
         ax2.set_ylabel("max rail deflection [mm]")
