@@ -33,18 +33,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from clm_core.errors import InputError, ParameterError
 from clm_core.io.timebase import NS
-from clm_core.online.policy import (
-    RESPONSE_KEY,
-    RULES,
-    STAMP_MAX,
-    STAMP_MIN,
-    InputPolicy,
-    Timeline,
-    TimelineState,
-    brief,
-    check_frame,
-    clip,
-)
+from clm_core.online import policy as rules
+from clm_core.online.policy import InputPolicy, Timeline, TimelineState, check_frame, clip
 from clm_core.online.records import OnlineStats, Reason, Rejected, ResponseFrame, WheelFrame
 from clm_core.params import ModelParams
 from clm_core.solver import FrameLoads, FrameResponses, TrackSimulator
@@ -274,7 +264,7 @@ class OnlineTrackModel:
             except (TypeError, ValueError, OverflowError, AttributeError) as exc:
                 out[g] = Rejected(Reason.MALFORMED, clip(f"frame of {type(fr).__name__}: {exc}"))
                 continue
-            if not STAMP_MIN <= stamp <= STAMP_MAX:
+            if not rules.STAMP_MIN <= stamp <= rules.STAMP_MAX:
                 out[g] = Rejected(Reason.MALFORMED, f"stamp {stamp} ns is outside builtin_interfaces/Time (int32 s)")
             elif pos.size != ids.size or F.size != ids.size or sp.size not in (0, ids.size):
                 out[g] = Rejected(Reason.SIZE_MISMATCH, f"array lengths differ (ids {ids.size}, positions {pos.size},"
@@ -325,11 +315,11 @@ class OnlineTrackModel:
         if new:
             known = self._fixed_set or self.timeline.last is not None
             if known and not self.accept_new_wheels:
-                return Rejected(Reason.UNKNOWN_ID, f"wheel id(s) {brief(new)} not in the wheel set "
-                                f"{brief(sorted(self._slot))} at stamp {p.stamp} ns")
+                return Rejected(Reason.UNKNOWN_ID, f"wheel id(s) {rules.brief(new)} not in the wheel set "
+                                f"{rules.brief(sorted(self._slot))} at stamp {p.stamp} ns")
             if len(self._slot_ids) + len(new) > self.policy.max_wheels:
-                return Rejected(Reason.TOO_MANY_WHEELS, f"{len(new)} new wheel id(s) ({brief(new)}) would make the "
-                                f"wheel set larger than max_wheels {self.policy.max_wheels}")
+                return Rejected(Reason.TOO_MANY_WHEELS, f"{len(new)} new wheel id(s) ({rules.brief(new)}) would make "
+                                f"the wheel set larger than max_wheels {self.policy.max_wheels}")
             for i in new:
                 self._register(i)
         slots = np.array([self._slot[i] for i in id_list], dtype=np.int64)
@@ -398,7 +388,7 @@ class OnlineTrackModel:
         if refusal.reason is not Reason.IMPLAUSIBLE_RESPONSE:
             return refusal
         tl = self.timeline
-        fate = tl.decide(p.stamp, RESPONSE_KEY, Reason.IMPLAUSIBLE_RESPONSE)
+        fate = tl.decide(p.stamp, rules.RESPONSE_KEY, Reason.IMPLAUSIBLE_RESPONSE)
         if fate is not Timeline.RESYNC:
             return Rejected(refusal.reason, clip(f"{str(refusal).split(': ', 1)[1]}; {tl.why(p.stamp, fate)}"))  # type: ignore[arg-type]
         slots = self._slots(p)
@@ -408,7 +398,7 @@ class OnlineTrackModel:
     def _refusal(self, res: FrameResponses, p: _Prepared) -> Rejected:
         """The refusal of the frame at which the kernel stopped."""
         if res.status == fk.STOP_INVALID:
-            reason = RULES[res.rule]
+            reason = rules.RULES[res.rule]
             assert reason is not None
             return Rejected(reason, self._value_message(reason, p, res.wheel))
         reason = Reason.OUTSIDE_WINDOW if res.status == fk.STOP_SHIFT else Reason.IMPLAUSIBLE_RESPONSE
@@ -526,9 +516,9 @@ class OnlineTrackModel:
             idx.flags.writeable = False
             x.flags.writeable = False
             sl = self._sleepers[first] = (idx, x)
-        return ResponseFrame._of(p.stamp, sl[0], sl[1], res.soil_force[r], res.rail_deflection[r],
-                                 res.sleeper_displacement[r], res.area_displacement[r], p.ids.copy(),
-                                 p.positions.copy(), res.wheel_deflection[a:b], res.wheel_velocity[a:b], resynced)
+        s, w = res.sleepers, res.wheels
+        return ResponseFrame._of(p.stamp, sl[0], sl[1], s[0, r], s[1, r], s[2, r], s[3, r], p.ids.copy(),
+                                 p.positions.copy(), w[0, a:b], w[1, a:b], resynced)
 
 
 __all__ = ["RUN_FRAMES", "OnlineTrackModel"]

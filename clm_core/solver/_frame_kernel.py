@@ -57,15 +57,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from clm_core.solver._kernels import (
-    StepOperator,
-    StepState,
-    _back_update,
-    _rhs_forward,
-    _sleeper_step,
-    _under_wheel,
-    hermite_wheel,
-)
+from clm_core.solver import _kernels as kern
+from clm_core.solver._kernels import StepOperator, StepState, hermite_wheel
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -104,14 +97,12 @@ class FrameGeometry(NamedTuple):
         same), behind, none (a fixed window).
     x0rel : float
         Position of rail node 0 relative to the first sleeper [m].
-    spacing : float
-        Sleeper spacing [m].
-    Le : float
-        Rail element length [m].
+    spacing, Le : float
+        Sleeper spacing and rail element length [m].
     n_el : int
-        Rail elements.
+        Rail elements of the window (``n_el + 1`` nodes).
     rail_w, rail_th : (n_el + 1,) int arrays
-        Deflection and rotation DOF of each rail node.
+        The rail nodes' deflection and rotation DOFs.
     lo_bay, hi_bay : int
         The allowed zone in bays from the first sleeper
         (:meth:`clm_core.solver.window.Window.limits`).
@@ -187,14 +178,9 @@ class FrameLoads(NamedTuple):
 class FrameBackup(NamedTuple):
     """Copies of the state taken at the first call of a run (``ctl[CTL_BACKUP]`` set), to restore it.
 
-    Attributes
-    ----------
-    u, v : (n,) arrays
-        Displacement [m] and velocity [m/s].
-    pk_force, pk_rail : (N,) arrays
-        Running peaks [N], [m].
-    P_prev, F_prev : (W,) arrays
-        The previous frame's wheels [m], [N].
+    The displacements ``u`` [m] and velocities ``v`` [m/s] (n,), the running
+    peaks ``pk_force`` [N] and ``pk_rail`` [m] (N,), and the previous frame's
+    wheels ``P_prev`` [m] and ``F_prev`` [N] (W,).
     """
 
     u: Array
@@ -508,9 +494,9 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
                         pe_v[c] *= fw
                         z[pe_d[c]] += pe_v[c]
                     pe_n += 4
-            _rhs_forward(op, u, v, z, y)
-            _back_update(op, u, v, z, y)
-            _sleeper_step(op, u, v, st.pk_force, st.pk_rail, out.force, out.rail, out.sleeper, out.area, -1)
+            kern._rhs_forward(op, u, v, z, y)
+            kern._back_update(op, u, v, z, y)
+            kern._sleeper_step(op, u, v, st.pk_force, st.pk_rail, out.force, out.rail, out.sleeper, out.area, -1)
             stepped = True
             k += 1
         if status != DONE:
@@ -518,14 +504,14 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
         # the response at the frame's last step: sleeper fields, and under its wheels at their positions
         ok = True
         out.first[j] = first
-        _sleeper_step(op, u, v, st.pk_force, st.pk_rail, out.force, out.rail, out.sleeper, out.area, j)
+        kern._sleeper_step(op, u, v, st.pk_force, st.pk_rail, out.force, out.rail, out.sleeper, out.area, j)
         for i in range(out.force.shape[1]):
             if not (abs(out.force[j, i]) <= max_force and abs(out.rail[j, i]) <= max_disp
                     and abs(out.sleeper[j, i]) <= max_disp and abs(out.area[j, i]) <= max_disp):
                 ok = False
         for e in range(ld.offsets[j], ld.offsets[j + 1]):
             hermite_wheel(ld.positions[e], x0, geo.Le, geo.n_el, geo.rail_w, geo.rail_th, wd, ww, 0)
-            d, vel = _under_wheel(wd, ww, 0, u, v)
+            d, vel = kern._under_wheel(wd, ww, 0, u, v)
             out.wdefl[e] = d
             out.wvel[e] = vel
             if not (abs(d) <= max_disp and abs(vel) < np.inf):

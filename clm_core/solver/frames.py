@@ -133,8 +133,7 @@ class FrameSteps:
         done, status, failure = self._frames(loads, out)
         if status == fk.STOP_INVALID:  # nothing of the frame was done: the state is that after the one before
             rule, wheel = int(ctl[fk.CTL_RULE]), int(ctl[fk.CTL_WHEEL])
-            return FrameResponses(first, sleepers[0], sleepers[1], sleepers[2], sleepers[3], wheels[0], wheels[1],
-                                  done, failure, status, rule, wheel)
+            return FrameResponses(first, sleepers, wheels, done, failure, status, rule, wheel)
         if status != fk.DONE:
             bk = self._backup(W)
             s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F = saved
@@ -148,8 +147,7 @@ class FrameSteps:
                 again, st, why = self._frames(truncated(loads, done), out)
                 if st != fk.DONE or again != done:  # pragma: no cover - the computation is deterministic
                     raise RuntimeError(f"advance_frames: replay of {done} frames gave {again} ({why})")
-        return FrameResponses(first, sleepers[0], sleepers[1], sleepers[2], sleepers[3], wheels[0], wheels[1],
-                              done, failure, status)
+        return FrameResponses(first, sleepers, wheels, done, failure, status)
 
     def _frames(self, loads: fk.FrameLoads, out: fk.FrameOutputs) -> tuple[int, int, str]:
         """Run the kernel through ``loads``, moving the window when it asks; (frames done, status, failure)."""
