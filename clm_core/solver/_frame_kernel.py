@@ -196,17 +196,17 @@ class FrameOutputs(NamedTuple):
 
     Attributes
     ----------
-    force, rail, sleeper, area : (R, N) arrays
+    sleepers : (4, R, N) array
         Soil force [N], rail deflection above the sleeper, sleeper and
         contact-area displacement [m] at each frame's response step.
     first : (R,) int array
         Global index of the window's first sleeper at each frame's response.
-    wdefl, wvel : (M,) arrays
+    wheels : (2, M) array
         Rail deflection [m] and velocity [m/s] under each wheel entry.
-    prev_dofs, prev_vals : (4 W,) int array, (4 W,) array
+    prev_dofs, prev_vals : (q,) int array, (q,) array
         The load vector at the last step made, as (DOF, value [N]) pairs
-        (``ctl[CTL_PREV]`` of them).
-    pos, F : (W,) arrays
+        (``ctl[CTL_PREV]`` of them; q >= 4 W).
+    last : (2, W) array
         Wheel positions [m] (NaN: absent) and forces [N] at the last step made.
     ctl : (8,) int array
         Control registers (``CTL_*``).
@@ -214,17 +214,12 @@ class FrameOutputs(NamedTuple):
         Response bounds in, wheel span out (``CTF_*``).
     """
 
-    force: Array
-    rail: Array
-    sleeper: Array
-    area: Array
+    sleepers: Array
     first: IntArray
-    wdefl: Array
-    wvel: Array
+    wheels: Array
     prev_dofs: IntArray
     prev_vals: Array
-    pos: Array
-    F: Array
+    last: Array
     ctl: IntArray
     ctl_f: Array
 
@@ -401,6 +396,7 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
         bk.F_prev[:] = F_prev
     max_force = ctf[CTF_MAX_FORCE]
     max_disp = ctf[CTF_MAX_DISP]
+    force, rail, sleeper, area = out.sleepers[0], out.sleepers[1], out.sleepers[2], out.sleepers[3]
     first = geo.first
     x0, lo, hi = _zone(first, geo)
     P1 = np.empty(W)
@@ -496,7 +492,7 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
                     pe_n += 4
             kern._rhs_forward(op, u, v, z, y)
             kern._back_update(op, u, v, z, y)
-            kern._sleeper_step(op, u, v, st.pk_force, st.pk_rail, out.force, out.rail, out.sleeper, out.area, -1)
+            kern._sleeper_step(op, u, v, st.pk_force, st.pk_rail, force, rail, sleeper, area, -1)
             stepped = True
             k += 1
         if status != DONE:
@@ -504,16 +500,16 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
         # the response at the frame's last step: sleeper fields, and under its wheels at their positions
         ok = True
         out.first[j] = first
-        kern._sleeper_step(op, u, v, st.pk_force, st.pk_rail, out.force, out.rail, out.sleeper, out.area, j)
-        for i in range(out.force.shape[1]):
-            if not (abs(out.force[j, i]) <= max_force and abs(out.rail[j, i]) <= max_disp
-                    and abs(out.sleeper[j, i]) <= max_disp and abs(out.area[j, i]) <= max_disp):
+        kern._sleeper_step(op, u, v, st.pk_force, st.pk_rail, force, rail, sleeper, area, j)
+        for i in range(force.shape[1]):
+            if not (abs(force[j, i]) <= max_force and abs(rail[j, i]) <= max_disp
+                    and abs(sleeper[j, i]) <= max_disp and abs(area[j, i]) <= max_disp):
                 ok = False
         for e in range(ld.offsets[j], ld.offsets[j + 1]):
             hermite_wheel(ld.positions[e], x0, geo.Le, geo.n_el, geo.rail_w, geo.rail_th, wd, ww, 0)
             d, vel = kern._under_wheel(wd, ww, 0, u, v)
-            out.wdefl[e] = d
-            out.wvel[e] = vel
+            out.wheels[0, e] = d
+            out.wheels[1, e] = vel
             if not (abs(d) <= max_disp and abs(vel) < np.inf):
                 ok = False
         if not ok:
@@ -535,8 +531,8 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
         ctl[CTL_PREV] = pe_n
         if stepped:
             for w in range(W):
-                out.pos[w] = pP[w]
-                out.F[w] = pF[w]
+                out.last[0, w] = pP[w]
+                out.last[1, w] = pF[w]
     else:
         ctl[CTL_PREV] = -1
     return status

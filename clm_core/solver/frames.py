@@ -122,13 +122,12 @@ class FrameSteps:
         sleepers = np.empty((4, R, self.n_sleepers))
         wheels = np.empty((2, M))
         q = max(4 * W, len(s.prev_dofs))
-        f8 = np.empty(q + 2 * W)
         ctl, ctl_f = self._frame_ctl
         ctl_f[fk.CTF_MAX_FORCE] = max_force
         ctl_f[fk.CTF_MAX_DISP] = max_displacement
         first = np.empty(R, dtype=np.int64)
-        out = fk.FrameOutputs(sleepers[0], sleepers[1], sleepers[2], sleepers[3], first, wheels[0], wheels[1],
-                              np.empty(q, dtype=np.int64), f8[:q], f8[q: q + W], f8[q + W:], ctl, ctl_f)
+        out = fk.FrameOutputs(sleepers, first, wheels, np.empty(q, dtype=np.int64), np.empty(q), np.empty((2, W)),
+                              ctl, ctl_f)
         saved = (s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F)
         done, status, failure = self._frames(loads, out)
         if status == fk.STOP_INVALID:  # nothing of the frame was done: the state is that after the one before
@@ -172,7 +171,7 @@ class FrameSteps:
             if q >= 0:
                 s.prev_dofs, s.prev_vals = out.prev_dofs[:q], out.prev_vals[:q]
                 if k != k_before:
-                    s.pos, s.F = out.pos, out.F
+                    s.pos, s.F = out.last[0], out.last[1]
             if status == fk.DONE:
                 return R, status, ""
             if status == fk.STOP_INVALID:
