@@ -168,6 +168,8 @@ class OnlineTrackModel:
         self._max_spread = (self.n_sleepers - 2 - self.sim.lead_sleepers - self.sim.margin_sleepers) * spacing
         self._limits = self.policy.limits(self._max_spread)
         self._no_speeds = np.zeros(0)
+        ints = self._ints1 = np.zeros(7, dtype=np.int64)  # ticks, k_end, offsets, soffsets of a single frame
+        self._ints1_views = (ints[0:2], ints[2:3], ints[3:5], ints[5:7])
         self._warm_up()
 
     # ------------------------------------------------------------------ state
@@ -430,13 +432,14 @@ class OnlineTrackModel:
         ps: list[_Prepared] = [prep[g] for g, _ in run]  # type: ignore[misc]
         R = len(run)
         epoch, dt = self.epoch_ns, self.dt_ns
-        if R == 1:
+        if R == 1:  # (a buffer of the model: the kernel's inputs live only for the call)
             p = ps[0]
-            tick = p.stamp - epoch
-            ints = np.array([self._prev_tick, tick, tick // dt, 0, p.positions.size, 0, p.speeds.size],
-                            dtype=np.int64)
-            ticks, k_end, offsets, soffsets = ints[0:2], ints[2:3], ints[3:5], ints[5:7]
+            tick, n = p.stamp - epoch, p.positions.size
+            ints = self._ints1
+            ints[0], ints[1], ints[2], ints[4], ints[6] = self._prev_tick, tick, tick // dt, n, p.speeds.size
+            ticks, k_end, offsets, soffsets = self._ints1_views
             slots, P, F, S = run[0][1], p.positions, p.forces, p.speeds
+            bounds = [0, n]
         else:
             ticks = np.array([self._prev_tick] + [p.stamp - epoch for p in ps], dtype=np.int64)
             k_end = ticks[1:] // dt
@@ -448,10 +451,10 @@ class OnlineTrackModel:
             np.cumsum([p.positions.size for p in ps], out=offsets[1:])
             soffsets = np.zeros(R + 1, dtype=np.int64)
             np.cumsum([p.speeds.size for p in ps], out=soffsets[1:])
+            bounds = offsets.tolist()
         k0 = self.sim._s.k
         res = self._advance(self._loads(ticks, k_end, offsets, slots, P, F, S, soffsets, len(self._slot_ids)))
         done = res.done
-        bounds = offsets.tolist()
         for r in range(done):
             out[run[r][0]] = self._response(ps[r], res, r, bounds[r], bounds[r + 1], False)
         if done:
