@@ -1,19 +1,44 @@
-"""The track–soil node: wheel loads in, sleeper soil forces and rail deflections out.
+"""The track–soil node: wheel loads in, sleeper soil forces and rail deflections out, in real time.
 
-A lifecycle node (``rclpy.lifecycle``) wrapping :class:`clm_core.online.OnlineTrackModel`:
+A lifecycle node (``rclpy.lifecycle``, the semantics of ros2/demos
+``lifecycle_py``) wrapping :class:`clm_core.online.OnlineTrackModel`. It owns
+no physics: it decodes messages at its edge, calls the core and encodes the
+answers (``clm replay`` runs the same core offline: the outputs are
+identical by construction).
 
-- configure: read the parameters, build and validate the model (an invalid or
-  unstable set is refused with its reason and the node stays unconfigured);
-- activate: subscribe to ``wheel_loads`` and publish, for every accepted
-  message, a ``clm_msgs/SleeperResponse`` on ``sleeper_response`` and a
-  ``clm_msgs/WheelRailResponse`` on ``wheel_rail_response``, stamped with the
-  input's stamp (simulation time), plus ``/diagnostics`` every
-  ``diagnostics_period`` s.
+States and what the node does in each:
 
-With ``autostart`` (default true) it configures and activates itself; users
-with a lifecycle manager set ``autostart:=false``. The node owns no physics:
-it converts messages at its edge and calls the core (``clm replay`` runs the
-same core offline, so the outputs are identical by construction).
+- **unconfigured**: no model. Parameters can be set; an invalid or unstable
+  physics set is refused with its reason here too.
+- **configuring** (``configure``): build and validate the model, then warm it
+  up: every JIT compilation (numba, cached on disk) and factorisation happens
+  now, so the first second of traffic is like any other. Create the answer
+  publishers (lifecycle publishers) and the live views. An invalid set fails
+  the transition (back to unconfigured, the reason logged).
+- **inactive**: model ready, not subscribed.
+- **activating** (``activate``): enable the publishers, then subscribe to
+  ``wheel_loads``. **The subscription exists exactly while the node is
+  active**: a publisher's ``get_subscription_count()`` turning >= 1 means the
+  node is warmed up and answering (the signal the vehicle node waits for).
+- **active**: every message taken is decoded, validated and answered
+  (``sleeper_response`` and ``wheel_rail_response``, stamped with the input's
+  stamp), or rejected and counted.
+- **deactivating**: stop accepting; wheel loads still queued are taken and
+  discarded unprocessed (counted as ``not_accepted``: not accepted, so no
+  answer is owed), then the subscription is destroyed.
+- **cleaning up**: drop the model and the answer publishers.
+- **shutting down** -> **finalized**: as deactivate + clean up; the node never
+  answers again (its ``/diagnostics`` say ``finalized``).
+
+With ``autostart`` (default true) it configures and activates itself.
+
+The data path (one executor callback): take the message and everything
+else waiting in the subscription (drain), decode with the numpy CDR codec
+(:mod:`clm_core.io.messages`), integrate through all of them in one go
+(``process_batch``), encode both answers per accepted message and publish
+the serialized bytes, in order. A malformed message is a rejection
+(``malformed``), never an exception. ``/diagnostics`` are published by a
+thread of their own (:mod:`clm_ros.diagnostics`), on time during a backlog.
 
 Run: ``python -m clm_ros.track_node --ros-args -p soil:=haren -p dt:=1e-4`` (or
 ``ros2 run clm_ros track_node`` in a full ROS install).
@@ -24,81 +49,145 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections import deque
+import traceback
 from typing import Any
 
 import numpy as np
 import rclpy
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.experimental import EventsExecutor
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from visualization_msgs.msg import MarkerArray
 
 from clm_core.errors import ClmError
-from clm_core.io.messages import frame_from_msg
-from clm_core.io.timebase import stamp_ns
-from clm_core.online import OnlineTrackModel, Rejected
-from clm_core.params import (
-    PARAMETER_DOCS,
-    SOIL_MODELS,
-    ModelParams,
-    load_model,
-    load_params_file,
+from clm_core.io.errors import MessageError
+from clm_core.io.messages import decode_wheel_loads, encode_sleeper_response, encode_wheel_rail_response
+from clm_core.io.timebase import NS
+from clm_core.online import OnlineTrackModel, Rejected, WheelFrame
+from clm_core.params import PARAMETER_DOCS, SOIL_MODELS, ModelParams, load_model, load_params_file
+from clm_ros import qos
+from clm_ros.conversions import rclpy_header
+from clm_ros.diagnostics import (
+    ERROR,
+    OK,
+    STALE,
+    WARN,
+    Counters,
+    DiagnosticsThread,
+    LagMonitor,
+    bounded,
+    diagnostic_array,
+    lag_level,
+    lag_values,
 )
-from clm_ros.conversions import rclpy_responses
+from clm_ros.lifetime import StopSignals, spin_until_stopped
 from clm_ros.parameters import declare_model_parameters, declare_settings
+from clm_ros.track_views import MonitoredSleepers, monitored_indices, window_markers
 
 NODE_NAME = "clm_track_node"
 
+#: Frames processed in one go at most; between chunks the answers go out and a stop request is honoured.
+CHUNK = 500
 
-def qos_profile(depth: int, reliability: str) -> QoSProfile:
-    """QoS for the data topics: keep-all (``depth`` 0, the default: nothing is dropped, a slow
-    subscriber slows the publisher down) or keep-last ``depth``; reliable or best effort."""
-    rel = ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT
-    if depth <= 0:
-        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=rel)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel)
+#: Settings whose change rebuilds the model (besides the model parameters ``<section>.<name>``).
+_MODEL_SETTINGS = ("max_gap", "accept_new_wheels")
 
 
 class TrackNode(LifecycleNode):
-    """Lifecycle node running the streaming track–soil model on wheel-load messages."""
+    """Lifecycle node running the streaming track–soil model on wheel-load messages.
 
-    def __init__(self, **kwargs: Any) -> None:
+    Parameters
+    ----------
+    stop : StopSignals, optional
+        Stop requests (signals) checked between chunks of a long backlog.
+    **kwargs
+        Passed to ``rclpy.lifecycle.Node``.
+    """
+
+    def __init__(self, stop: StopSignals | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         # parameters generated from the run-settings schema (clm_core.settings, clm_ros.parameters)
         declare_settings(self, ("track", "soil", "model", "params_file", "dt", "n_sleepers", "elements_per_bay",
                                 "lead_sleepers", "max_gap", "accept_new_wheels"))
-        declare_settings(self, ("publish_every", "qos_depth", "qos_reliability", "frame_id", "diagnostics_period",
-                                "autostart"))
-        # every scalar model parameter, NaN = take it from the preset / file
-        declare_model_parameters(self)
+        declare_settings(self, ("publish_every", "frame_id", "diagnostics_period", "autostart", "lag_budget",
+                                "max_feedback_delay", "monitored_sleepers", "monitored_positions",
+                                "markers_period"))
+        declare_model_parameters(self)  # every scalar model parameter, NaN = from the preset / file
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
+        self._stop = stop or StopSignals()
         self.model: OnlineTrackModel | None = None
+        self.counters = Counters()
+        self._logged: set[str] = set()
+        self._state = "unconfigured"
+        self._configure_error = ""
         self._pub_s: Any = None
         self._pub_w: Any = None
-        self._pub_diag: Any = None
+        self._pub_mon: Any = None
+        self._pub_markers: Any = None
+        self._monitor = MonitoredSleepers(np.zeros(0, dtype=np.int64), 1.0)
         self._sub: Any = None
-        self._timer: Any = None
-        self._logged: set[str] = set()
-        self._lags: deque[float] = deque(maxlen=10000)
-        self._proc_wall = 0.0
-        self._proc_sim = 0.0
-        self._published = 0
-        self._received = 0
-        self._accepted_since = 0
+        self._accepting = False
+        self._reliability = ""
+        self._requested_reliability: Any = None
+        self._recreate = False
+        self._peers = (-1, -1)
+        self._new_stream = False
+        self._last_markers = 0.0
+        self._last_response: Any = None
+        self._every = 1
+        self._frame_id = "track"
+        self._sim_ns = 0
+        self._busy_s = 0.0
+        self._rtf = (0, 0.0)
+        self._rejected_seen = 0
+        self._last_stamp_ns: int | None = None
+        self._lag = LagMonitor(self._now_ns)
+        # one /diagnostics publisher for the node's whole life (never one per configure)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(0.25, self._housekeeping, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._diag = DiagnosticsThread(self._publish_diagnostics, float(self.get_parameter("diagnostics_period").value),
+                                       lambda exc: self._log("warning", f"/diagnostics not published: {exc}"))
         if self.get_parameter("autostart").value:
             self.trigger_configure()
             if self.model is not None:
                 self.trigger_activate()
+        self._diag.start()
+
+    # ------------------------------------------------------------------ helpers
+
+    def _log(self, level: str, text: str, once: str | None = None) -> None:
+        """Log a bounded line (``once``: a key logged only the first time)."""
+        if once is not None:
+            if once in self._logged:
+                return
+            self._logged.add(once)
+        logger, line = self.get_logger(), bounded(text)
+        # one call site per severity: rclpy's logger refuses another severity from the same line
+        if level == "error":
+            logger.error(line)
+        elif level == "warning":
+            logger.warning(line)
+        else:
+            logger.info(line)
+
+    def _now_ns(self) -> int:
+        """The clock the stamps are read on [ns]: sim time with use_sim_time (0 until /clock), else system time."""
+        clock = self.get_clock()
+        if getattr(clock, "ros_time_is_active", False):
+            return int(clock.now().nanoseconds)
+        return time.time_ns()
 
     # ------------------------------------------------------------------ model from parameters
 
-    def _param_overrides(self, changes: dict[str, float] | None = None) -> dict[str, float]:
+    def _param_overrides(self, changes: dict[str, Any] | None = None) -> dict[str, float]:
         out: dict[str, float] = {}
         for name, (section, _, _) in PARAMETER_DOCS.items():
             key = f"{section}.{name}"
@@ -107,7 +196,7 @@ class TrackNode(LifecycleNode):
                 out[name] = float(v)
         return out
 
-    def build_params(self, changes: dict[str, float] | None = None) -> ModelParams:
+    def build_params(self, changes: dict[str, Any] | None = None) -> ModelParams:
         """Validated ModelParams from the node parameters (plus pending ``changes``)."""
         g = self.get_parameter
         over = self._param_overrides(changes)
@@ -137,172 +226,417 @@ class TrackNode(LifecycleNode):
         )
 
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
+        """Validate a physics change in every state; swap the model in when configured."""
         changes = {p.name: p.value for p in params}
-        physics = {k: v for k, v in changes.items() if k.split(".", 1)[-1] in PARAMETER_DOCS and "." in k}
-        if self.model is None or not (physics or "max_gap" in changes or "accept_new_wheels" in changes):
-            if "qos_reliability" in changes and changes["qos_reliability"] not in ("reliable", "best_effort"):
-                return SetParametersResult(successful=False, reason="qos_reliability: one of reliable, best_effort")
+        physics = {k: v for k, v in changes.items()
+                   if ("." in k and k.split(".", 1)[1] in PARAMETER_DOCS) or k in _MODEL_SETTINGS}
+        if "publish_every" in changes:
+            self._every = int(changes["publish_every"])
+        if "frame_id" in changes:
+            self._frame_id = str(changes["frame_id"])
+        if not physics:
             return SetParametersResult(successful=True)
         try:
-            new_params = self.build_params({k: float(v) for k, v in physics.items()})
-            new_model = self.build_model(new_params, changes)
-        except (ClmError, ValueError) as exc:
-            self.get_logger().warning(f"parameter update refused: {exc}")
-            return SetParametersResult(successful=False, reason=str(exc))
-        self.model = new_model
-        self.get_logger().info(f"parameters updated ({', '.join(sorted(changes))}); state restarts at the next message")
+            new_model = self.build_model(self.build_params(physics), physics)
+        except (ClmError, ValueError, OSError) as exc:
+            self._log("warning", f"parameter update refused: {exc}")
+            return SetParametersResult(successful=False, reason=bounded(str(exc)))
+        if self.model is not None and self._state in ("inactive", "active"):
+            self.model = new_model
+            self._last_stamp_ns = None
+            self._log("info", f"parameters updated ({', '.join(sorted(changes))}); the state restarts at the next "
+                      "message")
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ lifecycle
 
     def on_configure(self, state: State) -> TransitionCallbackReturn:
+        """Build, validate and warm up the model; create the answer publishers."""
+        g = self.get_parameter
         try:
             params = self.build_params()
-            self.model = self.build_model(params)
+            model = self.build_model(params)
+            monitored = monitored_indices(str(g("monitored_sleepers").value), str(g("monitored_positions").value),
+                                          params.track.spacing)
+            self._warm_up(params)
         except (ClmError, ValueError, OSError) as exc:
-            self.get_logger().error(f"configure refused: {exc}")
-            self.model = None
+            self._configure_error = bounded(str(exc))
+            self._log("error", f"configure refused: {exc}")
             return TransitionCallbackReturn.FAILURE
-        qos = qos_profile(int(self.get_parameter("qos_depth").value), str(self.get_parameter("qos_reliability").value))
-        self._pub_s = self.create_lifecycle_publisher(SleeperResponse, "sleeper_response", qos)
-        self._pub_w = self.create_lifecycle_publisher(WheelRailResponse, "wheel_rail_response", qos)
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self._qos = qos
-        self.get_logger().info(
-            f"configured: {params.name or 'parameter file'}, dt = {self.model.dt:g} s, "
-            f"window {self.model.n_sleepers} sleepers"
-        )
+        self.model = model
+        self._configure_error = ""
+        self._every = int(g("publish_every").value)
+        self._frame_id = str(g("frame_id").value)
+        self._last_stamp_ns = None
+        opts = qos.overrides
+        self._pub_s = self.create_lifecycle_publisher(SleeperResponse, "sleeper_response", qos.answers_qos(),
+                                                      qos_overriding_options=opts())
+        self._pub_w = self.create_lifecycle_publisher(WheelRailResponse, "wheel_rail_response", qos.answers_qos(),
+                                                      qos_overriding_options=opts())
+        self._monitor = MonitoredSleepers(monitored, params.track.spacing)
+        if self._monitor:
+            self._pub_mon = self.create_lifecycle_publisher(SleeperResponse, "monitored_sleepers", qos.view_qos(100),
+                                                            qos_overriding_options=opts())
+        if float(g("markers_period").value) > 0:
+            self._pub_markers = self.create_lifecycle_publisher(MarkerArray, "track_markers", qos.view_qos(1),
+                                                                qos_overriding_options=opts())
+        self._state = "inactive"
+        self._log("info", f"configured: {params.name or 'parameter file'}, dt = {model.dt:g} s, window "
+                  f"{model.n_sleepers} sleepers; compiled and factorised")
         return TransitionCallbackReturn.SUCCESS
 
+    def _warm_up(self, params: ModelParams) -> None:
+        """Run a throw-away copy of the model over a few frames: every kernel compiled (or loaded from the
+        on-disk cache) and every operator factorised before the node is activated."""
+        scratch = self.build_model(params)
+        x = 10.0 * params.track.spacing
+        for k in range(3):
+            stamp = 1.0 + k * 1e-3
+            resp = scratch.process(WheelFrame.of(stamp, [0, 1], [x + 0.08 * k, x - 2.5 + 0.08 * k], [8e4, 8e4]))
+            self._encode(int(round(stamp * NS)), np.array([0, 1], dtype=np.uint32), resp)
+
     def on_activate(self, state: State) -> TransitionCallbackReturn:
-        self._sub = self.create_subscription(WheelLoads, "wheel_loads", self._on_wheel_loads, self._qos)
-        self._timer = self.create_timer(
-            float(self.get_parameter("diagnostics_period").value), self._publish_diagnostics
-        )
-        return super().on_activate(state)
+        """Enable the publishers, then subscribe (the node is ready when its subscription appears)."""
+        ret = super().on_activate(state)
+        if ret != TransitionCallbackReturn.SUCCESS:
+            return ret
+        self._subscribe()
+        self._accepting = True
+        self._state = "active"
+        self._log("info", f"active: subscribed to {self._sub.topic_name} ({self._reliability})")
+        return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
-        if self._sub is not None:
-            self.destroy_subscription(self._sub)
-            self._sub = None
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
-            self._timer = None
+        """Stop accepting; discard (and count) what is still queued; unsubscribe."""
+        self._unsubscribe()
+        self._state = "inactive"
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
-        self.model = None
-        for p in (self._pub_s, self._pub_w):
-            if p is not None:
-                self.destroy_lifecycle_publisher(p)
-        self._pub_s = self._pub_w = None
+        """Drop the model and the publishers."""
+        self._release()
+        self._state = "unconfigured"
         return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
+        """From any primary state: unsubscribe, drop everything; the node never answers again."""
+        self._unsubscribe()
+        self._release()
+        self._state = "finalized"
+        self._log("info", "finalized: no wheel loads are taken any more")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: State) -> TransitionCallbackReturn:
+        """A transition raised: release everything and go back to unconfigured."""
+        self._unsubscribe()
+        self._release()
+        self._state = "unconfigured"
+        self._log("error", "a transition failed; the node is unconfigured")
+        return TransitionCallbackReturn.SUCCESS
+
+    def _release(self) -> None:
+        for name in ("_pub_s", "_pub_w", "_pub_mon", "_pub_markers"):
+            pub = getattr(self, name)
+            if pub is not None:
+                self.destroy_lifecycle_publisher(pub)
+                setattr(self, name, None)
+        self.model = None
+        self._last_response = None
+
+    # ------------------------------------------------------------------ subscription (QoS, peers)
+
+    def _capture_qos(self, profile: Any) -> SetParametersResult:
+        self._requested_reliability = profile.reliability
+        return SetParametersResult(successful=True)
+
+    def _subscribe(self) -> None:
+        """Subscribe to wheel_loads (raw bytes) with the QoS after the user's overrides (module clm_ros.qos)."""
+        opts = qos.overrides(callback=self._capture_qos)
+        events = SubscriptionEventCallbacks(incompatible_qos=self._on_incompatible_qos, message_lost=self._on_lost)
+        self._sub = self.create_subscription(WheelLoads, "wheel_loads", self._on_wheel_loads, qos.wheel_loads_qos(),
+                                             qos_overriding_options=opts, event_callbacks=events, raw=True)
+        pubs = self.get_publishers_info_by_topic(self._sub.topic_name)
+        self._reliability = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
+        self._recreate = False
+
+    def _unsubscribe(self) -> None:
+        """Stop accepting; take and count what is queued (not accepted: no answer owed); destroy."""
+        self._accepting = False
+        sub, self._sub = self._sub, None
+        if sub is None:
+            return
+        n = 0
+        try:
+            while sub.handle.take_message(WheelLoads, True) is not None:
+                n += 1
+        except Exception as exc:  # the subscription goes anyway
+            self._log("warning", f"discarding queued wheel loads: {exc}")
+        self.counters.received += n
+        self.counters.not_accepted += n
+        if n:
+            self._log("info", f"{n} queued wheel-load message(s) not accepted (node no longer active)")
+        self.destroy_subscription(sub)
+
+    def _on_incompatible_qos(self, event: Any) -> None:
+        self._log("warning", f"wheel_loads: a publisher offers an incompatible QoS (policy "
+                  f"{event.last_policy_kind}); subscription reliability {self._reliability}", once="incompatible")
+        self._recreate = True
+
+    def _on_lost(self, event: Any) -> None:
+        self.counters.lost += int(event.total_count_change)
+
+    def _housekeeping(self) -> None:
+        """Every 0.25 s on the executor thread: follow the publishers (QoS resolution, peers gone and back)."""
+        sub = self._sub
+        if sub is None:
+            self._peers = (-1, -1)
+            return
+        pubs = self.get_publishers_info_by_topic(sub.topic_name)
+        readers = self._pub_w.get_subscription_count() if self._pub_w is not None else 0
+        peers = (len(pubs), readers)
+        if peers != self._peers:
+            if self._peers[0] > 0 and peers[0] == 0:
+                self._new_stream = True  # every source left: the next message starts a new stream
+                self._log("warning", "wheel_loads: no publisher any more (peer gone); waiting for it to return")
+            elif self._new_stream and self._peers[0] == 0 and peers[0] > 0:
+                self._log("info", f"wheel_loads: {peers[0]} publisher(s) back; the next message starts a new stream")
+            if self._peers[1] > 0 and peers[1] == 0:
+                self._log("warning", "wheel_rail_response: no reader any more (peer gone)")
+            self._peers = peers
+        wanted = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
+        if self._recreate or wanted != self._reliability:
+            if self._requested_reliability != ReliabilityPolicy.BEST_AVAILABLE:
+                self._recreate = False
+                return
+            old = self._reliability
+            self._replace_subscription()
+            self._log("info", f"wheel_loads: subscription re-created, reliability {old} -> {self._reliability}")
+
+    def _replace_subscription(self) -> None:
+        """A new subscription (QoS resolved anew); what the old one holds is answered first."""
+        old = self._sub
+        self._drain(old, [])
+        self._subscribe()
+        self._drain(old, [])
+        self.destroy_subscription(old)
 
     # ------------------------------------------------------------------ data path
 
-    def _on_wheel_loads(self, msg: WheelLoads) -> None:
-        model = self.model
-        if model is None:
-            return
-        self._received += 1
-        t_ns = stamp_ns(msg.header)
-        frame = frame_from_msg(msg)
-        t_before = model.sim.t
-        w0 = time.perf_counter()
+    def _on_wheel_loads(self, first: bytes) -> None:
+        """Executor callback: this message and everything else waiting, answered in order."""
         try:
-            resp = model.process(frame)
-        except Rejected as exc:
-            cause = exc.reason.value
-            if cause not in self._logged:
-                self._logged.add(cause)
-                self.get_logger().warning(
-                    f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): {exc}"
-                )
+            if not self._accepting or self._sub is None:
+                self.counters.received += 1
+                self.counters.not_accepted += 1
+                return
+            self._drain(self._sub, [first])
+        except Exception as exc:  # never let one message end the node
+            self.counters.rejected["internal_error"] += 1
+            tb = traceback.format_exc(limit=3).strip().splitlines()
+            self._log("error", f"internal error on a wheel-load message (counted): {exc!r}; "
+                      f"{' | '.join(tb[-4:])}", once="internal_error")
+
+    def _drain(self, sub: Any, raws: list[bytes]) -> None:
+        """Take everything waiting in ``sub`` after ``raws`` and answer it, in chunks of at most CHUNK."""
+        take = sub.handle.take_message
+        while True:
+            got = take(WheelLoads, True)
+            if got is None:
+                break
+            raws.append(got[0])
+            if len(raws) >= CHUNK:
+                self._answer(raws)
+                raws = []
+                if self._stop.requested() or not self._accepting:
+                    return
+        if raws:
+            self._answer(raws)
+
+    def _decode(self, raws: list[bytes]) -> tuple[list[Any], list[WheelFrame]]:
+        datas: list[Any] = []
+        frames: list[WheelFrame] = []
+        for raw in raws:
+            try:
+                d = decode_wheel_loads(raw)
+            except MessageError as exc:
+                self._reject("malformed", str(exc))
+                continue
+            datas.append(d)
+            frames.append(WheelFrame(d.stamp_ns / NS, d.ids.astype(np.int64), d.positions, d.forces, d.speeds))
+        return datas, frames
+
+    def _process(self, frames: list[WheelFrame]) -> list[Any]:
+        """Every frame in one go, in order: a response or the exception that refused the frame."""
+        model = self.model
+        assert model is not None
+        if self._new_stream:
+            self._new_stream = False
+            if model.stats.accepted:
+                self.model = model = self.build_model(model.params)
+                self._last_stamp_ns = None
+        out: list[Any] = []
+        for f in frames:
+            try:
+                out.append(model.process(f))
+            except Exception as exc:  # Rejected, or a defect: counted either way
+                out.append(exc)
+        return out
+
+    def _reject(self, cause: str, text: str) -> None:
+        self.counters.rejected[cause] += 1
+        self._log("warning", f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): "
+                  f"{text}", once=cause)
+
+    def _encode(self, stamp_ns: int, ids: np.ndarray, resp: Any) -> tuple[bytes, bytes]:
+        s = resp.sleepers
+        fid = self._frame_id
+        return (
+            encode_sleeper_response(stamp_ns, fid, s.sleeper_index, s.sleeper_x, s.soil_force, s.rail_deflection,
+                                    s.sleeper_displacement, s.area_displacement),
+            encode_wheel_rail_response(stamp_ns, fid, ids, resp.wheel_positions, resp.wheel_deflection,
+                                       resp.wheel_velocity),
+        )
+
+    def _answer(self, raws: list[bytes]) -> None:
+        """Decode, integrate and answer one chunk of messages, in order."""
+        w0 = time.perf_counter()
+        c = self.counters
+        c.received += len(raws)
+        c.batches += 1
+        c.largest_batch = max(c.largest_batch, len(raws))
+        datas, frames = self._decode(raws)
+        if not frames:
             return
-        self._proc_wall += time.perf_counter() - w0
-        if not resp.resynced:
-            self._proc_sim += model.sim.t - t_before
-        elif model.stats.accepted > 1 and "resync" not in self._logged:
-            self._logged.add("resync")
-            self.get_logger().warning(f"stamp jump > max_gap: state re-synchronised at t = {frame.stamp:.6f} s")
-        every = int(self.get_parameter("publish_every").value)
-        self._accepted_since += 1
-        if self._accepted_since % every:
+        self._lag.waiting(len(frames), datas[0].stamp_ns)
+        results = self._process(frames)
+        pub_s, pub_w, mon = self._pub_s, self._pub_w, self._monitor
+        every = self._every
+        stamps: list[int] = []
+        last = self._last_stamp_ns
+        sim_ns = 0
+        for d, r in zip(datas, results):
+            if isinstance(r, Exception):
+                cause = r.reason.value if isinstance(r, Rejected) else "internal_error"
+                self._reject(cause, str(r))
+                continue
+            c.accepted += 1
+            if r.resynced:
+                c.resyncs += 1
+            elif last is not None:
+                sim_ns += d.stamp_ns - last
+            last = d.stamp_ns
+            self._last_response = r
+            if every > 1 and c.accepted % every:
+                continue
+            s_bytes, w_bytes = self._encode(d.stamp_ns, d.ids, r)
+            try:
+                pub_s.publish(s_bytes)
+                pub_w.publish(w_bytes)
+                if mon:
+                    self._pub_mon.publish(mon.encode(d.stamp_ns, self._frame_id, r.sleepers))
+            except Exception as exc:  # a reader that stopped acknowledging, a context going down
+                c.publish_failed += 1
+                self._log("warning", f"an answer could not be published (counted as publish_failed): {exc}",
+                          once="publish_failed")
+                continue
+            c.published += 1
+            stamps.append(d.stamp_ns)
+        self._last_stamp_ns = last
+        self._lag.answered(np.asarray(stamps, dtype=np.int64))
+        self._lag.waiting(0, 0)
+        self._sim_ns += sim_ns
+        self._busy_s += time.perf_counter() - w0
+        self._publish_markers()
+
+    def _publish_markers(self) -> None:
+        if self._pub_markers is None or self._last_response is None:
             return
-        s, w = rclpy_responses(resp, t_ns, str(self.get_parameter("frame_id").value))
-        self._pub_s.publish(s)
-        self._pub_w.publish(w)
-        self._published += 1
-        now_ns = self.get_clock().now().nanoseconds
-        self._lags.append((now_ns - t_ns) / 1e9)
+        now = time.monotonic()
+        if now - self._last_markers < float(self.get_parameter("markers_period").value):
+            return
+        self._last_markers = now
+        r = self._last_response
+        header = rclpy_header(int(round(r.stamp * NS)), self._frame_id)
+        try:
+            self._pub_markers.publish(window_markers(r.sleepers, header))
+        except Exception as exc:  # a view must never stop the answers
+            self._log("warning", f"track_markers not published: {exc}", once="markers")
+
+    # ------------------------------------------------------------------ diagnostics (own thread)
 
     def _publish_diagnostics(self) -> None:
+        g = self.get_parameter
+        budget, late = float(g("lag_budget").value), float(g("max_feedback_delay").value)
+        lag = self._lag.summary(late)
+        sim_ns, busy = self._sim_ns, self._busy_s
+        d_sim, d_busy = sim_ns - self._rtf[0], busy - self._rtf[1]
+        self._rtf = (sim_ns, busy)
+        state = self._state
+        rejected = self.counters.rejected_total
+        new_rejections, self._rejected_seen = rejected - self._rejected_seen, rejected
+        if state == "active":
+            level, message = lag_level(lag, budget, late)
+            if level == OK and new_rejections:
+                level, message = WARN, f"{new_rejections} wheel-load message(s) rejected in the last period"
+        elif state == "finalized":
+            level, message = STALE, "finalized: not answering"
+        elif state == "unconfigured" and self._configure_error:
+            level, message = ERROR, f"unconfigured: configure refused: {self._configure_error}"
+        else:
+            level, message = OK, f"{state}: not subscribed to wheel_loads"
         model = self.model
-        if model is None or self._pub_diag is None:
-            return
-        st = model.stats
-        lags = np.asarray(self._lags) if self._lags else np.zeros(1)
-        rtf = self._proc_sim / self._proc_wall if self._proc_wall > 0 else 0.0
         values = {
-            "received": st.accepted + st.rejected_total,
-            "accepted": st.accepted,
-            "published": self._published,
-            "rejected": st.rejected_total,
-            **{f"rejected.{k}": v for k, v in sorted(st.rejected.items())},
-            "resyncs": st.resyncs,
-            "real_time_factor": f"{rtf:.3f}",
-            "lag_median_s": f"{float(np.median(lags)):.6f}",
-            "lag_p99_s": f"{float(np.percentile(lags, 99)):.6f}",
-            "sim_time_s": f"{model.sim.t + model.epoch:.6f}",
+            "state": state,
+            **self.counters.values(),
+            **lag_values(lag),
+            "lag_budget_s": f"{budget:g}",
+            "max_feedback_delay_s": f"{late:g}",
+            "real_time_factor": f"{d_sim * 1e-9 / d_busy:.3f}" if d_busy > 0 else "nan",
+            "wheel_load_publishers": max(self._peers[0], 0),
+            "answer_readers": max(self._peers[1], 0),
+            "wheel_loads_reliability": self._reliability or "none",
+            "sim_time_s": f"{model.sim.t + model.epoch:.6f}" if model is not None else "nan",
         }
-        level = DiagnosticStatus.OK
-        message = "running"
-        if st.rejected_total:
-            level, message = DiagnosticStatus.WARN, f"{st.rejected_total} message(s) rejected"
-        if 0 < rtf < 1.0:
-            level, message = DiagnosticStatus.WARN, f"slower than real time (RTF {rtf:.2f})"
-        status = DiagnosticStatus(
-            level=level,
-            name=f"{self.get_name()}: track-soil model",
-            message=message,
-            hardware_id="clm_core",
-            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
-        )
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        self._pub_diag.publish(arr)
+        self._pub_diag.publish(diagnostic_array(f"{self.get_name()}: track-soil model", level, message, values,
+                                                self.get_clock().now().to_msg()))
+
+    def destroy_node(self) -> None:
+        """Stop the diagnostics thread, then destroy the node."""
+        self._diag.stop()
+        self._accepting = False
+        super().destroy_node()
 
     def stats(self) -> dict[str, Any]:
         """Counters (for tests and the launcher)."""
-        st = self.model.stats if self.model else None
-        return {
-            "received": self._received,
-            "published": self._published,
-            "accepted": st.accepted if st else 0,
-            "rejected": dict(st.rejected) if st else {},
-        }
+        return self.counters.values()
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console entry point ``track_node``."""
-    rclpy.init(args=args)
-    node = None
+    """Console entry point ``track_node``: exit 0 on SIGINT/SIGTERM (within 2 s, also under load), 2 when the
+    model cannot be configured at start."""
+    stop = StopSignals()
+    stop.install(interrupt=True)  # during start-up a signal interrupts at once
+    node: TrackNode | None = None
+    executor: Any = None
     try:
-        node = TrackNode()
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        node = TrackNode(stop=stop)
         if node.model is None and node.get_parameter("autostart").value:
             return 2
-        # rclpy's EventsExecutor costs ~30 % less CPU per message than the
-        # SingleThreadedExecutor; its spin() delivered no callback to this node on the
-        # Jazzy wheels, a spin_once loop does (measured: benchmarks/node_lag.py).
+        # EventsExecutor: ~30 % less CPU per message than the SingleThreadedExecutor; its constructor installs
+        # its own SIGINT/SIGTERM handlers, replaced by ours right after
         executor = EventsExecutor()
         executor.add_node(node)
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        stop.install(interrupt=False)
+        spin_until_stopped(executor, stop, rclpy.ok, node.get_logger().error)
+    except KeyboardInterrupt:
         pass
     finally:
+        stop.install(interrupt=False)
         if node is not None:
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
         rclpy.try_shutdown()
     return 0
 
