@@ -17,9 +17,15 @@ or in a parameter file), and ``ros2 param list`` shows them. Defaults:
   changes it (an incompatible publisher is then logged and counted, not
   served).
 - answers (``sleeper_response``, ``wheel_rail_response``): reliable, keep
-  all: a slow reader slows the node rather than losing answers; a reader
-  that stops acknowledging makes a publish fail after the middleware's
-  blocking time, which the node counts (``publish_failed``) and survives.
+  last 1000. A reader acknowledges a sample once its middleware holds it
+  (not when its application takes it), so a live reader loses nothing unless
+  its middleware falls 1000 answers (1 s at 1 kHz) behind; a reader that
+  died without saying so (``kill -9``: the middleware notices only after its
+  lease, ~20 s) never blocks the node. With keep-all, each publish would
+  block for the middleware's blocking time once that reader's unacknowledged
+  samples fill the history, and fail: the node would fall seconds behind
+  for every live reader. (A failed publish is counted, ``publish_failed``,
+  never fatal.)
 - live views (``monitored_sleepers``, ``track_markers``): reliable, keep last
   100 / 1 (compatible with best-effort and reliable readers: PlotJuggler,
   Foxglove, RViz).
@@ -42,8 +48,8 @@ def wheel_loads_qos() -> QoSProfile:
 
 
 def answers_qos() -> QoSProfile:
-    """Default QoS of the answers: reliable, keep all (no answer dropped by the node's choice)."""
-    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    """Default QoS of the answers: reliable, keep last 1000 (a dead reader never blocks the node)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def view_qos(depth: int) -> QoSProfile:
