@@ -21,30 +21,12 @@ pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/set
 from builtin_interfaces.msg import Time
 from driver import Driver, status_dict
 from rosgraph_msgs.msg import Clock
+from streams import encoded, frames, offline
 
 from clm_core.io.messages import encode_wheel_loads
 from clm_core.io.timebase import NS, ns_to_stamp
-from clm_core.online import OnlineTrackModel, WheelFrame
-from clm_core.params import load_model
 
 NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
-OFF = np.array([0.0, 3.0])
-
-
-def frames(n: int, t0_ns: int, period_ns: int = 10**6, v: float = 30.0) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """Two wheels 3 m apart at ``v`` m/s, 85 kN each, one frame per ``period_ns``."""
-    return [(t0_ns + k * period_ns, 30.0 - OFF + v * k * period_ns / NS, np.array([85e3, 85e3])) for k in range(n)]
-
-
-def encoded(stream: list[tuple[int, np.ndarray, np.ndarray]]) -> list[bytes]:
-    return [encode_wheel_loads(t, "track", [0, 1], p, f) for t, p, f in stream]
-
-
-def offline(stream: list[tuple[int, np.ndarray, np.ndarray]]) -> list:  # type: ignore[type-arg]
-    m = OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=61)
-    return [m.process(WheelFrame.of(t / NS, [0, 1], p, f)) for t, p, f in stream]
-
-
 @pytest.fixture
 def node(ros_python):  # type: ignore[no-untyped-def]
     def start(*params: str):  # type: ignore[no-untyped-def]

@@ -121,6 +121,7 @@ class TrackNode(LifecycleNode):
                                 "markers_period"))
         declare_model_parameters(self)  # every scalar model parameter, NaN = from the preset / file
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._guard_change_state()
 
         self._stop = stop or StopSignals()
         self.model: OnlineTrackModel | None = None
@@ -164,6 +165,25 @@ class TrackNode(LifecycleNode):
         self._diag.start()
 
     # ------------------------------------------------------------------ helpers
+
+    def _guard_change_state(self) -> None:
+        """Answer ``change_state`` with success = false for a transition the current state does not have
+        (rclpy raises there, and the caller would wait for an answer forever)."""
+        srv = getattr(self, "_service_change_state", None)
+        if srv is None:
+            return
+        inner = srv.callback
+
+        def guarded(request: Any, response: Any) -> Any:
+            try:
+                return inner(request, response)
+            except Exception as exc:  # RCLError: no such transition from this state
+                self._log("warning", f"transition {request.transition.id} {request.transition.label!r} refused in "
+                          f"state {self._state}: {exc}")
+                response.success = False
+                return response
+
+        srv.callback = guarded
 
     def _log(self, level: str, text: str, once: str | None = None) -> None:
         """Log a bounded line (``once``: a key logged only the first time)."""
