@@ -50,11 +50,12 @@ class Driver:
     domain_id : int
     ns : str
         Namespace of the node's topics.
-    wheel_qos : QoSProfile
-        QoS of the wheel-load publisher (default reliable keep-all).
+    wheel_qos : QoSProfile or None
+        QoS of the wheel-load publisher (default reliable keep-all); None: no
+        publisher (another process feeds the node).
     """
 
-    def __init__(self, domain_id: int, ns: str = "", wheel_qos: QoSProfile = QOS) -> None:
+    def __init__(self, domain_id: int, ns: str = "", wheel_qos: QoSProfile | None = QOS) -> None:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         self.ctx = Context()
         rclpy.init(context=self.ctx, domain_id=domain_id)
@@ -62,7 +63,8 @@ class Driver:
         self.exec = SingleThreadedExecutor(context=self.ctx)
         self.exec.add_node(self.node)
         self.ns = ns
-        self.pub = self.node.create_publisher(WheelLoads, f"{ns}/wheel_loads", wheel_qos)
+        self.pub = None if wheel_qos is None else self.node.create_publisher(WheelLoads, f"{ns}/wheel_loads",
+                                                                             wheel_qos)
         self.sleepers: list[Any] = []
         self.wheels: list[Any] = []
         self.diagnostics: list[Any] = []
@@ -99,8 +101,9 @@ class Driver:
 
     def wait_discovery(self, timeout: float = 30.0) -> None:
         """Until the node subscribes to wheel_loads (it is active) and its answers reach this driver."""
+        topic = f"{self.ns}/wheel_loads"
         self.wait_for(
-            lambda: (self.pub.get_subscription_count() >= 1
+            lambda: ((self.pub.get_subscription_count() if self.pub else self.node.count_subscribers(topic)) >= 1
                      and self.node.count_publishers(f"{self.ns}/sleeper_response") >= 1
                      and self.node.count_publishers(f"{self.ns}/wheel_rail_response") >= 1),
             timeout, "discovery of the track node")
@@ -130,8 +133,21 @@ class Driver:
         self.wait_for(lambda: len(self.sleepers) >= n_sleepers and len(self.wheels) >= n_wheels, timeout,
                       f"{n_sleepers} answers (have {len(self.sleepers)}, {len(self.wheels)})")
 
+    def drain(self, rounds: int = 5000) -> None:
+        """Run the callbacks of what is already received (one per ``spin_once``), until a few rounds bring
+        nothing new to the answers and diagnostics."""
+        quiet = 0
+        for _ in range(rounds):
+            before = len(self.sleepers) + len(self.wheels) + len(self.diagnostics)
+            self.exec.spin_once(timeout_sec=0)
+            quiet = quiet + 1 if len(self.sleepers) + len(self.wheels) + len(self.diagnostics) == before else 0
+            if quiet >= 3:
+                return
+
     def latest_diagnostics(self, timeout: float = 10.0) -> dict[str, str]:
-        """The next ``/diagnostics`` of the node, as ``{key: value}`` plus ``_level`` and ``_message``."""
+        """The next ``/diagnostics`` of the node published from now on (older ones still queued are taken
+        first), as ``{key: value}`` plus ``_level`` and ``_message``."""
+        self.drain()
         n = len(self.diagnostics)
         self.wait_for(lambda: len(self.diagnostics) > n, timeout, "a /diagnostics message")
         return status_dict(self.diagnostics[-1][1])

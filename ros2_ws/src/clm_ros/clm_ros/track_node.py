@@ -141,6 +141,7 @@ class TrackNode(LifecycleNode):
         self._recreate = False
         self._peers = (-1, -1)
         self._new_stream = False
+        self._peer_lost = False
         self._last_markers = 0.0
         self._last_response: Any = None
         self._every = 1
@@ -419,13 +420,7 @@ class TrackNode(LifecycleNode):
         readers = self._pub_w.get_subscription_count() if self._pub_w is not None else 0
         peers = (len(pubs), readers)
         if peers != self._peers:
-            if self._peers[0] > 0 and peers[0] == 0:
-                self._new_stream = True  # every source left: the next message starts a new stream
-                self._log("warning", "wheel_loads: no publisher any more (peer gone); waiting for it to return")
-            elif self._new_stream and self._peers[0] == 0 and peers[0] > 0:
-                self._log("info", f"wheel_loads: {peers[0]} publisher(s) back; the next message starts a new stream")
-            if self._peers[1] > 0 and peers[1] == 0:
-                self._log("warning", "wheel_rail_response: no reader any more (peer gone)")
+            self._peers_changed(self._peers, peers)
             self._peers = peers
         wanted = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
         if self._recreate or wanted != self._reliability:
@@ -435,6 +430,21 @@ class TrackNode(LifecycleNode):
             old = self._reliability
             self._replace_subscription()
             self._log("info", f"wheel_loads: subscription re-created, reliability {old} -> {self._reliability}")
+
+    def _peers_changed(self, old: tuple[int, int], new: tuple[int, int]) -> None:
+        """Log who came and went (a peer that dies is seen when its middleware lease runs out)."""
+        if old[0] > 0 and new[0] == 0:
+            self._new_stream = self._peer_lost = True  # every source left: the next message starts a new stream
+            self._log("warning", "wheel_loads: no publisher any more (peer gone); waiting for it to return")
+        elif self._peer_lost and old[0] == 0 and new[0] > 0:
+            self._peer_lost = False
+            self._log("info", f"wheel_loads: {new[0]} publisher(s) back")
+        elif old[0] >= 0 and new[0] != old[0]:
+            self._log("info", f"wheel_loads: {old[0]} -> {new[0]} publisher(s)")
+        if old[1] > 0 and new[1] == 0:
+            self._log("warning", "wheel_rail_response: no reader any more (peer gone)")
+        elif old[1] >= 0 and new[1] != old[1]:
+            self._log("info", f"wheel_rail_response: {old[1]} -> {new[1]} reader(s)")
 
     def _replace_subscription(self) -> None:
         """A new subscription (QoS resolved anew); what the old one holds is answered first."""
@@ -498,6 +508,7 @@ class TrackNode(LifecycleNode):
             if model.stats.accepted:
                 self.model = model = self.build_model(model.params)
                 self._last_stamp_ns = None
+                self._log("info", "wheel_loads: a new stream (every publisher had left): the state restarts")
         out: list[Any] = []
         for f in frames:
             try:
