@@ -103,18 +103,25 @@ def frame_from_msg(msg: Any) -> WheelFrame:
     Returns
     -------
     clm_core.online.WheelFrame
-        Stamp [s] (float, from the integer-nanosecond stamp), ids, positions
-        [m], forces [N] (positive downwards), speeds [m/s].
+        Stamp [ns] (integer), ids, positions [m], forces [N] (positive
+        downwards), speeds [m/s], ``header.frame_id``.
+
+    Raises
+    ------
+    MessageError
+        A stamp outside ``builtin_interfaces/Time`` (``nanosec`` >= 1e9,
+        ``sec`` outside int32): the message is malformed.
     """
     from clm_core.online import WheelFrame
 
     wheels = list(msg.wheels)
     return WheelFrame.of(
-        stamp_ns(msg.header) / NS,
+        stamp_ns(msg.header, check=True),
         [w.id for w in wheels],
         [w.position for w in wheels],
         [w.force for w in wheels],
         [w.speed for w in wheels],
+        str(msg.header.frame_id),
     )
 
 
@@ -128,14 +135,13 @@ def sleeper_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
         ``rail_deflection``, ``sleeper_displacement``, ``area_displacement`` [m]
         (float64; positive downwards), one entry per sleeper of the window.
     """
-    s = resp.sleepers
     return {
-        "sleeper_index": np.asarray(s.sleeper_index, dtype=np.int64),
-        "position": np.asarray(s.sleeper_x, dtype=np.float64),
-        "soil_force": np.asarray(s.soil_force, dtype=np.float64),
-        "rail_deflection": np.asarray(s.rail_deflection, dtype=np.float64),
-        "sleeper_displacement": np.asarray(s.sleeper_displacement, dtype=np.float64),
-        "area_displacement": np.asarray(s.area_displacement, dtype=np.float64),
+        "sleeper_index": np.asarray(resp.sleeper_index, dtype=np.int64),
+        "position": np.asarray(resp.sleeper_x, dtype=np.float64),
+        "soil_force": np.asarray(resp.soil_force, dtype=np.float64),
+        "rail_deflection": np.asarray(resp.rail_deflection, dtype=np.float64),
+        "sleeper_displacement": np.asarray(resp.sleeper_displacement, dtype=np.float64),
+        "area_displacement": np.asarray(resp.area_displacement, dtype=np.float64),
     }
 
 

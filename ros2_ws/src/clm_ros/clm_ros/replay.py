@@ -21,7 +21,7 @@ from typing import Any
 
 from clm_core.errors import InputError
 from clm_core.io.bags import BagReader, BagWriter, default_qos
-from clm_core.io.errors import BagError
+from clm_core.io.errors import BagError, MessageError
 from clm_core.io.messages import (
     SLEEPER_RESPONSE,
     WHEEL_LOADS,
@@ -32,8 +32,8 @@ from clm_core.io.messages import (
     sleeper_fields,
     wheel_fields,
 )
-from clm_core.io.timebase import stamp_ns
-from clm_core.online import OnlineTrackModel, Rejected
+from clm_core.io.timebase import NS
+from clm_core.online import OnlineTrackModel, Reason, Rejected
 from clm_ros.errors import ClmRosError
 
 WHEEL_RAIL = WHEEL_RAIL_RESPONSE
@@ -122,7 +122,7 @@ def replay_bag(
 def _run(reader: BagReader, writer: BagWriter, model: OnlineTrackModel, stats: ReplayStats, in_topic: str,
          conns: tuple[Any, Any, Any], frame_id: str, progress: Any) -> None:
     c_in, c_s, c_w = conns
-    sim_t = 0.0
+    sim0 = model.stats.simulated_ns
     for m in reader.messages([in_topic]):
         stats.read += 1
         writer.write(c_in, m.log_ns, m.data)
@@ -132,23 +132,25 @@ def _run(reader: BagReader, writer: BagWriter, model: OnlineTrackModel, stats: R
             raise ClmRosError(
                 f"bag {str(reader.path)!r}: message {stats.read} on {in_topic} cannot be decoded ({exc})"
             ) from None
-        before = model.sim.t
         try:
-            resp = model.process(frame_from_msg(msg))
+            frame = frame_from_msg(msg)
+        except MessageError as exc:
+            stats.rejected[model.reject(Reason.MALFORMED, str(exc)).reason.value] += 1
+            continue
+        try:
+            resp = model.process(frame)
         except Rejected as exc:
             stats.rejected[exc.reason.value] += 1
             continue
         except InputError as exc:  # pragma: no cover - process only raises Rejected
             stats.rejected[str(exc)] += 1
             continue
-        if not resp.resynced:
-            sim_t += model.sim.t - before
         stats.accepted += 1
-        t_ns = stamp_ns(msg.header)
+        t_ns = resp.stamp_ns
         s, w = sleeper_fields(resp), wheel_fields(resp)
         writer.write(c_s, m.log_ns, encode_sleeper_response(t_ns, frame_id, *s.values()))
         writer.write(c_w, m.log_ns, encode_wheel_rail_response(t_ns, frame_id, *w.values()))
         stats.written += 1
         if progress is not None:
             progress(stats.read)
-    stats.sim_time_s = sim_t
+    stats.sim_time_s = (model.stats.simulated_ns - sim0) / NS

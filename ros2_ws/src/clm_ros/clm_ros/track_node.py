@@ -39,9 +39,10 @@ from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from clm_core.errors import ClmError
+from clm_core.io.errors import MessageError
 from clm_core.io.messages import frame_from_msg
-from clm_core.io.timebase import stamp_ns
-from clm_core.online import OnlineTrackModel, Rejected
+from clm_core.io.timebase import NS
+from clm_core.online import OnlineTrackModel, Reason, Rejected
 from clm_core.params import (
     PARAMETER_DOCS,
     SOIL_MODELS,
@@ -134,6 +135,7 @@ class TrackNode(LifecycleNode):
             max_gap=float(get("max_gap")),
             accept_new_wheels=bool(get("accept_new_wheels")),
             lead_sleepers=None if lead < 0 else lead,
+            stats=self.model.stats if self.model is not None else None,  # counters monotonic over the node's life
         )
 
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
@@ -205,26 +207,24 @@ class TrackNode(LifecycleNode):
         if model is None:
             return
         self._received += 1
-        t_ns = stamp_ns(msg.header)
-        frame = frame_from_msg(msg)
-        t_before = model.sim.t
+        try:
+            frame = frame_from_msg(msg)
+        except MessageError as exc:
+            self._log_rejection(model.reject(Reason.MALFORMED, str(exc)))
+            return
+        t_ns = frame.stamp_ns
+        sim_before = model.stats.simulated_ns
         w0 = time.perf_counter()
         try:
             resp = model.process(frame)
         except Rejected as exc:
-            cause = exc.reason.value
-            if cause not in self._logged:
-                self._logged.add(cause)
-                self.get_logger().warning(
-                    f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): {exc}"
-                )
+            self._log_rejection(exc)
             return
         self._proc_wall += time.perf_counter() - w0
-        if not resp.resynced:
-            self._proc_sim += model.sim.t - t_before
-        elif model.stats.accepted > 1 and "resync" not in self._logged:
+        self._proc_sim += (model.stats.simulated_ns - sim_before) / NS
+        if resp.resynced and model.stats.accepted > 1 and "resync" not in self._logged:
             self._logged.add("resync")
-            self.get_logger().warning(f"stamp jump > max_gap: state re-synchronised at t = {frame.stamp:.6f} s")
+            self.get_logger().warning(f"stamp jump: state re-synchronised at t = {frame.stamp_ns / NS:.6f} s")
         every = int(self.get_parameter("publish_every").value)
         self._accepted_since += 1
         if self._accepted_since % every:
@@ -235,6 +235,14 @@ class TrackNode(LifecycleNode):
         self._published += 1
         now_ns = self.get_clock().now().nanoseconds
         self._lags.append((now_ns - t_ns) / 1e9)
+
+    def _log_rejection(self, exc: Rejected) -> None:
+        cause = exc.reason.value
+        if cause not in self._logged:
+            self._logged.add(cause)
+            self.get_logger().warning(
+                f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): {exc}"
+            )
 
     def _publish_diagnostics(self) -> None:
         model = self.model
@@ -253,7 +261,7 @@ class TrackNode(LifecycleNode):
             "real_time_factor": f"{rtf:.3f}",
             "lag_median_s": f"{float(np.median(lags)):.6f}",
             "lag_p99_s": f"{float(np.percentile(lags, 99)):.6f}",
-            "sim_time_s": f"{model.sim.t + model.epoch:.6f}",
+            "sim_time_s": f"{(model.time_ns or 0) / NS:.6f}",
         }
         level = DiagnosticStatus.OK
         message = "running"
