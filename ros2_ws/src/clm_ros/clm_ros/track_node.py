@@ -42,7 +42,7 @@ from clm_core.errors import ClmError
 from clm_core.io.errors import MessageError
 from clm_core.io.messages import frame_from_msg
 from clm_core.io.timebase import NS
-from clm_core.online import OnlineTrackModel, Reason, Rejected
+from clm_core.online import InputPolicy, OnlineTrackModel, Reason, Rejected
 from clm_core.params import (
     PARAMETER_DOCS,
     SOIL_MODELS,
@@ -50,6 +50,7 @@ from clm_core.params import (
     load_model,
     load_params_file,
 )
+from clm_core.settings import ONLINE_POLICY
 from clm_ros.conversions import rclpy_responses
 from clm_ros.parameters import declare_model_parameters, declare_settings
 
@@ -72,7 +73,7 @@ class TrackNode(LifecycleNode):
         super().__init__(NODE_NAME, **kwargs)
         # parameters generated from the run-settings schema (clm_core.settings, clm_ros.parameters)
         declare_settings(self, ("track", "soil", "model", "params_file", "dt", "n_sleepers", "elements_per_bay",
-                                "lead_sleepers", "max_gap", "accept_new_wheels"))
+                                "lead_sleepers", "max_gap", "accept_new_wheels", *ONLINE_POLICY))
         declare_settings(self, ("publish_every", "qos_depth", "qos_reliability", "frame_id", "diagnostics_period",
                                 "autostart"))
         # every scalar model parameter, NaN = take it from the preset / file
@@ -136,12 +137,14 @@ class TrackNode(LifecycleNode):
             accept_new_wheels=bool(get("accept_new_wheels")),
             lead_sleepers=None if lead < 0 else lead,
             stats=self.model.stats if self.model is not None else None,  # counters monotonic over the node's life
+            policy=InputPolicy.from_settings({name: get(name) for name in ONLINE_POLICY}),
         )
 
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
         changes = {p.name: p.value for p in params}
         physics = {k: v for k, v in changes.items() if k.split(".", 1)[-1] in PARAMETER_DOCS and "." in k}
-        if self.model is None or not (physics or "max_gap" in changes or "accept_new_wheels" in changes):
+        rebuild = physics or {"max_gap", "accept_new_wheels", *ONLINE_POLICY} & changes.keys()
+        if self.model is None or not rebuild:
             if "qos_reliability" in changes and changes["qos_reliability"] not in ("reliable", "best_effort"):
                 return SetParametersResult(successful=False, reason="qos_reliability: one of reliable, best_effort")
             return SetParametersResult(successful=True)
