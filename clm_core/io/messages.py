@@ -16,9 +16,10 @@ is built on this module):
    bag for a type: the ``.msg`` files *with their comments* (units, sign
    convention), dependencies appended as rosbag2 Jazzy's
    ``LocalMessageDefinitionSource`` does.
-2. **Domain data.** :func:`frame_from_msg` (``WheelLoads`` -> the online
-   model's frame), :func:`sleeper_fields` / :func:`wheel_fields` (a response
-   -> message arrays), and rosbags message builders.
+2. **Domain data.** :func:`frame_from_msg`, :func:`frame_from_cdr`
+   (``WheelLoads``, as a message or as CDR bytes -> the online model's
+   frame), :func:`sleeper_fields` / :func:`wheel_fields` (a response ->
+   message arrays), and rosbags message builders.
 3. **CDR codec** (XCDR1, as ROS 2 Jazzy puts on the wire): ``WheelLoads``,
    ``SleeperResponse`` and ``WheelRailResponse`` to and from numpy arrays
    with ``np.frombuffer`` and preallocated buffers, no per-element Python.
@@ -72,6 +73,7 @@ __all__ = [
     "encode_sleeper_response",
     "encode_wheel_loads",
     "encode_wheel_rail_response",
+    "frame_from_cdr",
     "frame_from_msg",
     "interface_dir",
     "message_definition",
@@ -123,6 +125,24 @@ def frame_from_msg(msg: Any) -> WheelFrame:
         [w.speed for w in wheels],
         str(msg.header.frame_id),
     )
+
+
+def frame_from_cdr(data: Any) -> WheelFrame:
+    """Serialized ``clm_msgs/WheelLoads`` (CDR bytes, as on the wire or in a bag) -> the online model's frame.
+
+    :func:`decode_wheel_loads` (numpy codec, no per-wheel Python) and the
+    frame of its arrays: stamp [ns], ids (int64), positions [m], forces [N],
+    speeds [m/s], ``header.frame_id``.
+
+    Raises
+    ------
+    MessageError
+        Truncated or malformed bytes, a header ``nanosec`` >= 1e9.
+    """
+    from clm_core.online import WheelFrame
+
+    d = decode_wheel_loads(data)
+    return WheelFrame(d.stamp_ns, d.ids.astype(np.int64), d.positions, d.forces, d.speeds, d.frame_id)
 
 
 def sleeper_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:

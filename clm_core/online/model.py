@@ -33,7 +33,18 @@ from numpy.typing import ArrayLike, NDArray
 
 from clm_core.errors import InputError, ParameterError
 from clm_core.io.timebase import NS
-from clm_core.online.policy import RULES, STAMP_MAX, STAMP_MIN, InputPolicy, Timeline, brief, check_frame, clip
+from clm_core.online.policy import (
+    RESPONSE_KEY,
+    RULES,
+    STAMP_MAX,
+    STAMP_MIN,
+    InputPolicy,
+    Timeline,
+    TimelineState,
+    brief,
+    check_frame,
+    clip,
+)
 from clm_core.online.records import OnlineStats, Reason, Rejected, ResponseFrame, WheelFrame
 from clm_core.params import ModelParams
 from clm_core.solver import FrameLoads, FrameResponses, TrackSimulator
@@ -52,7 +63,7 @@ def _dt_ns(dt: float) -> int:
     if not (math.isfinite(dt) and dt > 0):
         raise ParameterError(f"dt = {dt}: time step must be finite and > 0 s")
     n = round(dt * NS)
-    if n < 1 or abs(dt * NS - n) > 1e-6 * dt * NS:
+    if n < 1 or abs(dt * NS - n) > 1e-3:
         raise ParameterError(f"dt = {dt!r} s: the online model needs a whole number of nanoseconds")
     return int(n)
 
@@ -328,7 +339,7 @@ class OnlineTrackModel:
     def _settle(self, prep: list[_Prepared | None], out: list[Any], i: int) -> int:
         """Plan frames from ``i`` on, run the ones that continue the stream, settle them; the next frame."""
         run: list[tuple[int, IntArray]] = []
-        before: list[tuple[tuple[int | None, int | None, int], int]] = []  # planning state before each
+        before: list[tuple[TimelineState, int]] = []  # planning state before each
         tl = self.timeline
         g = i
         while g < len(prep) and len(run) < RUN_FRAMES:
@@ -338,26 +349,35 @@ class OnlineTrackModel:
                 continue
             state = (tl.state(), len(self._slot_ids))
             slots = self._slots(p)
+            key = b""
             if isinstance(slots, Rejected):
-                out[g] = slots
-            elif tl.continues(p.stamp):
+                if slots.reason is not Reason.UNKNOWN_ID or self._fixed_set:
+                    out[g] = slots
+                    g += 1
+                    continue
+                key = p.ids.tobytes()  # a candidate new wheel set (a new stream, confirmed like a new timeline)
+            if not key and tl.continues(p.stamp):
                 before.append(state)
-                run.append((g, slots))
+                run.append((g, slots))  # type: ignore[arg-type]
                 tl.accepted(p.stamp)  # its value rules are checked in the kernel, before it is stepped
-            else:  # off the timeline, or the first frame: the value rules first, then the stamp rules
+            else:  # off the timeline, new wheels, or the first frame: the value rules first, then the stream rules
                 reason, w = check_frame(p.positions, p.forces, p.speeds, self._limits)
-                fate = tl.decide(p.stamp) if reason is None else reason
+                fate = tl.decide(p.stamp, key, Reason.UNKNOWN_ID if key else None) if reason is None else reason
                 if fate is Timeline.RESYNC and run:  # run what is planned first; this frame is planned again
                     tl.restore(state[0])
                     self._unregister(state[1])
                     break
                 if fate is Timeline.RESYNC:
-                    out[g] = self._resync(p, slots, state)
-                    self._count(out, g, g + 1)
+                    out[g] = self._resync(p, None if key else slots, state)  # type: ignore[arg-type]
+                    self._count(out, i, g + 1)
                     return g + 1
                 self._unregister(state[1])
-                out[g] = Rejected(fate, self._value_message(fate, p, w) if reason else  # type: ignore[arg-type]
-                                  tl.why(p.stamp, fate))  # type: ignore[arg-type]
+                if reason is not None:
+                    out[g] = Rejected(reason, self._value_message(reason, p, w))
+                elif fate is Reason.UNKNOWN_ID:
+                    out[g] = Rejected(fate, clip(f"{str(slots).split(': ', 1)[1]}; {tl.why(p.stamp, fate)}"))
+                else:
+                    out[g] = Rejected(fate, tl.why(p.stamp, fate))  # type: ignore[arg-type]
             g += 1
         if run:
             done, res = self._run(prep, run, out)
@@ -365,10 +385,25 @@ class OnlineTrackModel:
                 gf = run[done][0]
                 tl.restore(before[done][0])
                 self._unregister(before[done][1])
-                out[gf] = self._refusal(res, prep[gf])  # type: ignore[arg-type]
+                out[gf] = self._refused_in_run(prep[gf], res, before[done])  # type: ignore[arg-type]
                 g = gf + 1
         self._count(out, i, g)
         return g
+
+    def _refused_in_run(self, p: _Prepared, res: FrameResponses, state: tuple[TimelineState, int]
+                        ) -> ResponseFrame | Rejected:
+        """The frame at which a run stopped: refused; but ``resync_confirm`` consecutive frames whose responses
+        are refused restart the state at the last of them (a state gone bad does not blind the model)."""
+        refusal = self._refusal(res, p)
+        if refusal.reason is not Reason.IMPLAUSIBLE_RESPONSE:
+            return refusal
+        tl = self.timeline
+        fate = tl.decide(p.stamp, RESPONSE_KEY, Reason.IMPLAUSIBLE_RESPONSE)
+        if fate is not Timeline.RESYNC:
+            return Rejected(refusal.reason, clip(f"{str(refusal).split(': ', 1)[1]}; {tl.why(p.stamp, fate)}"))  # type: ignore[arg-type]
+        slots = self._slots(p)
+        assert not isinstance(slots, Rejected)  # the frame's ids were accepted when it was planned
+        return self._resync(p, slots, state)
 
     def _refusal(self, res: FrameResponses, p: _Prepared) -> Rejected:
         """The refusal of the frame at which the kernel stopped."""
@@ -438,16 +473,23 @@ class OnlineTrackModel:
 
     _prev_tick = 0  # the last accepted frame's stamp relative to the epoch [ns]
 
-    def _resync(self, p: _Prepared, slots: IntArray, state: tuple[tuple[int | None, int | None, int], int]
+    def _resync(self, p: _Prepared, slots: IntArray | None, state: tuple[TimelineState, int]
                 ) -> ResponseFrame | Rejected:
-        """(Re)start the state at frame ``p`` (first frame or a confirmed new timeline)."""
+        """(Re)start the state at frame ``p``: the first frame, or one that confirms a new stream.
+
+        ``slots`` None: the frame's ids become the wheel set (a new stream of other wheels).
+        """
+        old_ids = list(self._slot_ids)
+        sim = self.sim
+        saved, saved_pos, saved_F = sim._save(), self._pos.copy(), self._F.copy()
+        if slots is None:
+            self._unregister(0)
+            slots = np.array([self._register(i) for i in p.ids.tolist()], dtype=np.int64)
         W = len(self._slot_ids)
         P = np.full(W, np.nan)
         F = np.zeros(W)
         P[slots] = p.positions
         F[slots] = np.maximum(p.forces, 0.0)
-        sim = self.sim
-        saved, saved_pos, saved_F = sim._save(), self._pos.copy(), self._F.copy()
         try:
             if p.positions.size == 0:
                 raise InputError("no wheels: nothing to start from")
@@ -462,9 +504,11 @@ class OnlineTrackModel:
                                clip(f"{exc} (stamp {p.stamp} ns)"))
         if refusal is not None:
             sim._restore(saved)
+            self._unregister(0)
+            for i in old_ids:
+                self._register(i)
             self._pos, self._F = saved_pos, saved_F
             self.timeline.restore(state[0])
-            self._unregister(state[1])
             return refusal
         self.epoch_ns = p.stamp
         self._prev_tick = 0

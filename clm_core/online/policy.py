@@ -139,8 +139,14 @@ def check_frame(positions: Array, forces: Array, speeds: Array, limits: Array) -
     return RULES[rule], int(wheel)
 
 
+#: What :meth:`Timeline.restore` puts back: last stamp, candidate stamp, its count and its key.
+TimelineState = tuple[int | None, int | None, int, bytes]
+#: The key of frames whose response was refused: consecutive ones restart the state (a state that went bad).
+RESPONSE_KEY = b"response"
+
+
 class Timeline:
-    """Which stamps continue the stream (the stamp rules of :mod:`clm_core.online`).
+    """Which stamps continue the stream, and when a new stream is confirmed (the rules of :mod:`clm_core.online`).
 
     Parameters
     ----------
@@ -154,9 +160,12 @@ class Timeline:
     last : int or None
         The last accepted stamp [ns].
     candidate : int or None
-        The last stamp of a candidate new timeline [ns].
+        The last stamp of a candidate new stream [ns].
     count : int
-        Frames on the candidate timeline so far.
+        Frames of the candidate so far.
+    key : bytes
+        The candidate's wheel set when it is a new one (its ids as bytes;
+        empty: the stream's wheel set).
     """
 
     ADVANCE, RESYNC = "advance", "resync"
@@ -167,41 +176,59 @@ class Timeline:
         self.last: int | None = None
         self.candidate: int | None = None
         self.count = 0
+        self.key = b""
 
-    def state(self) -> tuple[int | None, int | None, int]:
+    def state(self) -> TimelineState:
         """What :meth:`restore` puts back."""
-        return self.last, self.candidate, self.count
+        return self.last, self.candidate, self.count, self.key
 
-    def restore(self, state: tuple[int | None, int | None, int]) -> None:
+    def restore(self, state: TimelineState) -> None:
         """Put back a :meth:`state`."""
-        self.last, self.candidate, self.count = state
+        self.last, self.candidate, self.count, self.key = state
 
     def continues(self, stamp: int) -> bool:
         """Whether a frame stamped ``stamp`` [ns] continues the stream: in ``(last, last + max_gap]``."""
         last = self.last
         return last is not None and last < stamp <= last + self.max_gap_ns
 
-    def decide(self, stamp: int) -> str | Reason:
-        """The fate of a valid frame stamped ``stamp`` [ns]; updates the candidate timeline.
+    def decide(self, stamp: int, key: bytes = b"", reason: Reason | None = None) -> str | Reason:
+        """The fate of a valid frame stamped ``stamp`` [ns]; updates the candidate new stream.
 
-        Returns :attr:`ADVANCE` (it continues the stream), :attr:`RESYNC`
-        (first frame, or the frame that confirms a new timeline) or the
-        :class:`Reason` of its refusal. The caller reports the acceptance
-        with :meth:`accepted`.
+        Parameters
+        ----------
+        stamp : int
+            The frame's stamp [ns].
+        key : bytes
+            What makes the frame a candidate although its stamp continues
+            the stream: its wheel ids (as bytes) when they are not the stream's
+            wheel set, :data:`RESPONSE_KEY` when its response was refused;
+            empty otherwise.
+        reason : Reason, optional
+            The refusal to return for a keyed candidate not (yet) confirmed.
+
+        Returns
+        -------
+        str or Reason
+            :attr:`ADVANCE` (it continues the stream), :attr:`RESYNC` (the
+            first frame, or the one that confirms a new stream: a new timeline,
+            or a new wheel set) or the :class:`Reason` of its refusal. The
+            caller reports an acceptance with :meth:`accepted`.
         """
         last = self.last
         if last is None:
             return self.RESYNC
-        if self.continues(stamp):
+        if not key and self.continues(stamp):
             return self.ADVANCE
         cand = self.candidate
-        if cand is not None and cand < stamp <= cand + self.max_gap_ns:
+        if cand is not None and cand < stamp <= cand + self.max_gap_ns and key == self.key:
             self.count += 1
         else:
             self.count = 1
-        self.candidate = stamp
+        self.candidate, self.key = stamp, key
         if self.count >= self.confirm:
             return self.RESYNC
+        if reason is not None:
+            return reason
         return Reason.STAMP_JUMP if stamp > last else Reason.STAMP_NOT_INCREASING
 
     def accepted(self, stamp: int) -> None:
@@ -209,15 +236,17 @@ class Timeline:
         self.last = stamp
         self.candidate = None
         self.count = 0
+        self.key = b""
 
     def why(self, stamp: int, reason: Reason) -> str:
-        """The message of a stamp refusal."""
+        """The message of a refusal by :meth:`decide`."""
+        of = f"frame {self.count} of the {self.confirm} that confirm a new stream"
         if reason is Reason.STAMP_JUMP:
             return (f"stamp {stamp} ns is {(stamp - (self.last or 0)) / NS:.6g} s after the last accepted "
-                    f"{self.last} ns (max_gap {self.max_gap_ns / NS:g} s): a jump, frame {self.count} of the "
-                    f"{self.confirm} that confirm a new timeline")
-        return (f"stamp {stamp} ns is not after the last accepted {self.last} ns: frame {self.count} of the "
-                f"{self.confirm} that confirm a new timeline")
+                    f"{self.last} ns (max_gap {self.max_gap_ns / NS:g} s): a jump, {of}")
+        if reason in (Reason.UNKNOWN_ID, Reason.IMPLAUSIBLE_RESPONSE):
+            return of
+        return f"stamp {stamp} ns is not after the last accepted {self.last} ns: {of}"
 
 
 def brief(values: Iterable[Any], limit: int = 8) -> str:
@@ -237,5 +266,15 @@ def clip(text: str, limit: int = MESSAGE_CHARS) -> str:
 
 
 __all__ = [
-    "MESSAGE_CHARS", "RULES", "STAMP_MAX", "STAMP_MIN", "InputPolicy", "Timeline", "brief", "check_frame", "clip",
+    "MESSAGE_CHARS",
+    "RESPONSE_KEY",
+    "RULES",
+    "STAMP_MAX",
+    "STAMP_MIN",
+    "InputPolicy",
+    "Timeline",
+    "TimelineState",
+    "brief",
+    "check_frame",
+    "clip",
 ]

@@ -13,7 +13,9 @@ the per-step work of the Python side moved inside:
   linearly in time, ``a = (K dt - t_prev) / (t_j - t_prev)`` from integers,
   ``a = 1`` exactly at the frame's stamp; a wheel present in only the new
   frame carries its new values over the whole interval, one absent from it
-  is absent;
+  is absent; when that would make the wheels span more than the window holds
+  part-way (a wheel entering while another jumps far), the new frame's
+  values hold over the whole interval;
 - the cubic Hermite weights of every wheel are computed at every step
   (:func:`clm_core.solver._kernels.hermite_wheel`);
 - at each frame's end the sleeper fields and the rail deflection and
@@ -265,6 +267,39 @@ def check_frame(pos, force, speed, lim):  # type: ignore[no-untyped-def]  # prag
     return check_values(pos, force, speed, 0, pos.shape[0], 0, speed.shape[0], lim)
 
 
+@njit(cache=True, inline="always")
+def _wheels_at(P0, F0, P1, F1, num, span, hold, Pc, Fc):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Wheels at the step ``num`` ticks after the previous frame (of ``span``): into ``Pc``, ``Fc``; (front, rear).
+
+    A wheel in both frames is interpolated linearly (``a = num / span``; ``a = 1``
+    exactly at the frame, and throughout with ``hold``); one only in the new
+    frame (``P1``) carries its values; one absent from it is absent (NaN, 0).
+    Without wheels, front is -inf and rear +inf.
+    """
+    a = num / span if span != 0 else 1.0
+    front = -np.inf
+    rear = np.inf
+    for w in range(P1.shape[0]):
+        p1 = P1[w]
+        if p1 == p1:
+            p0 = P0[w]
+            if p0 == p0 and num != span and not hold:
+                p = p0 + a * (p1 - p0)
+                Fc[w] = F0[w] + a * (F1[w] - F0[w])
+            else:
+                p = p1
+                Fc[w] = F1[w]
+            Pc[w] = p
+            if p > front:
+                front = p
+            if p < rear:
+                rear = p
+        else:
+            Pc[w] = np.nan
+            Fc[w] = 0.0
+    return front, rear
+
+
 @njit(cache=True)
 def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """Advance through frames ``ctl[CTL_FRAME]`` .. R - 1 in place; return the status (also in ``ctl``).
@@ -331,29 +366,19 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
             F1[sl] = f if f > 0.0 else 0.0
         t0 = ld.ticks[j]
         span = ld.ticks[j + 1] - t0
+        # wheels entering while others move far could span more than the window holds part-way: then the
+        # frame's values hold over its interval (decided on the frame's own steps: the same when resumed)
+        hold = False
+        for w in range(W):
+            if (P1[w] == P1[w]) != (P_prev[w] == P_prev[w]):
+                for kk in range(t0 // dt, ld.k_end[j]):
+                    front, rear = _wheels_at(P_prev, F_prev, P1, F1, (kk + 1) * dt - t0, span, False, Pc, Fc)
+                    if front - rear > ld.limits[LIM_SPAN]:
+                        hold = True
+                        break
+                break
         while k < ld.k_end[j]:
-            num = (k + 1) * dt - t0
-            a_ = num / span
-            front = -np.inf
-            rear = np.inf
-            for w in range(W):
-                p1 = P1[w]
-                if p1 == p1:
-                    p0 = P_prev[w]
-                    if p0 == p0 and num != span:
-                        p = p0 + a_ * (p1 - p0)
-                        Fc[w] = F_prev[w] + a_ * (F1[w] - F_prev[w])
-                    else:
-                        p = p1
-                        Fc[w] = F1[w]
-                    Pc[w] = p
-                    if p > front:
-                        front = p
-                    if p < rear:
-                        rear = p
-                else:
-                    Pc[w] = np.nan
-                    Fc[w] = 0.0
+            front, rear = _wheels_at(P_prev, F_prev, P1, F1, (k + 1) * dt - t0, span, hold, Pc, Fc)
             if front > geo.hi or rear < geo.lo:
                 ctf[CTF_FRONT] = front
                 ctf[CTF_REAR] = rear

@@ -113,8 +113,9 @@ def test_bad_input_rejected_counted_logged_once(node_and_driver) -> None:  # typ
     assert d["rejected.duplicate_id"] == "1" and d["rejected.unknown_id"] == "1"
     assert d["rejected.stamp_not_increasing"] == "1" and d["rejected.outside_window"] == "1"
     assert d["accepted"] == "300" and d["rejected"] == "8" and d["_level"] == "1"  # WARN
-    # a jump far ahead re-synchronises (handled, answered)
-    drv.send([rclpy_wheel_loads(good[-1][0] + 50 * NS, [0, 1], [1000.0, 997.0], [85e3, 85e3])], expected_answers=1)
+    # a jump far ahead re-synchronises once confirmed by the frames after it (resync_confirm = 3; handled, answered)
+    drv.send([rclpy_wheel_loads(good[-1][0] + 50 * NS + k * 10**6, [0, 1], [1000.0, 997.0], [85e3, 85e3])
+              for k in range(3)], expected_answers=1)
     assert drv.latest_diagnostics()["resyncs"] == "2"
     proc.terminate()
     _, err = proc.communicate(timeout=20)

@@ -4,7 +4,7 @@
 from a rosbag2 bag (mcap or sqlite3) with the suite's bag reader
 (:class:`clm_core.io.bags.BagReader`: counts cross-checked against the
 metadata, damaged chunks refused unless ``allow_partial``), decodes them with
-the numpy CDR codec (:func:`clm_core.io.messages.decode_wheel_loads`), passes
+the numpy CDR codec (:func:`clm_core.io.messages.frame_from_cdr`), passes
 them through :class:`clm_core.online.OnlineTrackModel` in chunks
 (:meth:`~clm_core.online.OnlineTrackModel.process_batch`, bit for bit what
 the track node computes message by message), and writes a bag
@@ -26,17 +26,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from clm_core.io.bags import BagReader, BagWriter, default_qos
 from clm_core.io.errors import BagError, MessageError
 from clm_core.io.messages import (
     SLEEPER_RESPONSE,
     WHEEL_LOADS,
     WHEEL_RAIL_RESPONSE,
-    decode_wheel_loads,
     encode_sleeper_response,
     encode_wheel_rail_response,
+    frame_from_cdr,
     sleeper_fields,
     wheel_fields,
 )
@@ -162,12 +160,11 @@ def _chunk(chunk: list[Any], model: OnlineTrackModel, writer: BagWriter, conns: 
     frames: list[WheelFrame] = []
     for m in chunk:
         try:
-            d = decode_wheel_loads(m.data)
+            frames.append(frame_from_cdr(m.data))
         except MessageError as exc:
             results.append(model.reject(Reason.MALFORMED, f"message {stats.read + len(results) + 1} on {in_topic} "
                                         f"cannot be decoded ({exc})"))
             continue
-        frames.append(WheelFrame(d.stamp_ns, d.ids.astype(np.int64), d.positions, d.forces, d.speeds, d.frame_id))
         results.append(None)
     answers = iter(model.process_batch(frames))
     for m, r in zip(chunk, results):
