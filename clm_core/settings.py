@@ -312,7 +312,9 @@ LEAD_SLEEPERS: Setting[int] = Setting(
     "lead_sleepers", int, None, "-", "sleepers kept ahead of the foremost wheel", minimum=1, maximum=4000,
     none_means="a third of the window", ros_unset=-1, flags=("--lead-sleepers", "--lead"), read_only=True,
 )
-MAX_GAP: Setting[float] = Setting("max_gap", float, 1.0, "s", "a stamp gap above this re-synchronises the state",
+MAX_GAP: Setting[float] = Setting("max_gap", float, 1.0, "s",
+                                  "a stamp gap above this is a jump (re-synchronises once confirmed, see "
+                                  "resync_confirm)",
                                   minimum=1e-4, maximum=1e6)
 ACCEPT_NEW_WHEELS: Setting[bool] = Setting("accept_new_wheels", bool, False, "-",
                                            "accept wheel ids not in the first message (wheels entering)")
@@ -320,6 +322,36 @@ INITIAL_STATE: Setting[str] = Setting(
     "initial_state", str, "static", "-", "initial state: static equilibrium under the initial loads, or at rest",
     choices=("static", "rest"), flags=("--initial",), read_only=True,
 )
+
+# the online input policy (clm_core.online: the track node and clm replay refuse what breaks it, counted per cause)
+MAX_WHEEL_FORCE: Setting[float] = Setting(
+    "max_wheel_force", float, 1.0e6, "N", "largest plausible wheel force (a frame with a larger one is refused)",
+    minimum=1.0, maximum=1.0e9)
+MAX_WHEEL_POSITION: Setting[float] = Setting(
+    "max_wheel_position", float, 1.0e7, "m", "largest plausible distance of a wheel from the line's origin",
+    minimum=1.0, maximum=1.0e9)
+MAX_WHEEL_SPEED: Setting[float] = Setting(
+    "max_wheel_speed", float, 250.0, "m/s", "largest plausible wheel speed (the speeds of a frame; NaN = unknown)",
+    minimum=0.1, maximum=1.0e4)
+MAX_RESPONSE_FORCE: Setting[float] = Setting(
+    "max_response_force", float, 1.0e8, "N",
+    "largest plausible soil force in a response (a frame whose response exceeds it is refused, the state restored)",
+    minimum=1.0, maximum=1.0e12)
+MAX_RESPONSE_DISPLACEMENT: Setting[float] = Setting(
+    "max_response_displacement", float, 0.5, "m",
+    "largest plausible rail, sleeper or soil displacement in a response (beyond: the frame is refused, the state "
+    "restored)", minimum=1e-6, maximum=1.0e3)
+RESYNC_CONFIRM: Setting[int] = Setting(
+    "resync_confirm", int, 3, "-",
+    "consecutive frames on a new timeline (a stamp jump forwards beyond max_gap or backwards) that make it the "
+    "stream's timeline: the last of them restarts the state, the others are refused", minimum=2, maximum=1000)
+MAX_WHEELS: Setting[int] = Setting(
+    "max_wheels", int, 256, "-", "most wheels in a frame and in the wheel set (ids ever accepted)",
+    minimum=1, maximum=100000)
+#: The settings of the online input policy (:class:`clm_core.online.InputPolicy`), for the node and ``clm replay``.
+ONLINE_POLICY: tuple[str, ...] = tuple(s.name for s in (
+    MAX_WHEEL_FORCE, MAX_WHEEL_POSITION, MAX_WHEEL_SPEED, MAX_RESPONSE_FORCE, MAX_RESPONSE_DISPLACEMENT, RESYNC_CONFIRM,
+    MAX_WHEELS))
 
 # the run
 DURATION: Setting[float] = Setting("duration", float, 3.0, "s", "simulated time", minimum=1e-3, maximum=3600.0)
@@ -410,9 +442,10 @@ SETTINGS: Mapping[str, Setting[Any]] = {
     s.name: s
     for s in (
         TRACK, SOIL, MODEL, PARAMS_FILE, DT, N_SLEEPERS, ELEMENTS_PER_BAY, LEAD_SLEEPERS, MAX_GAP,
-        ACCEPT_NEW_WHEELS, INITIAL_STATE, DURATION, OUTPUT_DT, STORAGE, START, SPEED, LOAD, AXLES, LOADS_FILE,
-        VEHICLE, CARS, TRAIN, IRREGULARITY, SEED, WAVELENGTH_BAND, LEAD_IN, HERTZ, TRACK_ENGINE, RATE, CLOSED_LOOP,
-        LAG_BUDGET, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS, MARKERS_PERIOD,
+        ACCEPT_NEW_WHEELS, INITIAL_STATE, MAX_WHEEL_FORCE, MAX_WHEEL_POSITION, MAX_WHEEL_SPEED, MAX_RESPONSE_FORCE,
+        MAX_RESPONSE_DISPLACEMENT, RESYNC_CONFIRM, MAX_WHEELS, DURATION, OUTPUT_DT, STORAGE, START, SPEED, LOAD, AXLES,
+        LOADS_FILE, VEHICLE, CARS, TRAIN, IRREGULARITY, SEED, WAVELENGTH_BAND, LEAD_IN, HERTZ, TRACK_ENGINE, RATE,
+        CLOSED_LOOP, LAG_BUDGET, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS, MARKERS_PERIOD,
     )
 }
 

@@ -16,9 +16,10 @@ is built on this module):
    bag for a type: the ``.msg`` files *with their comments* (units, sign
    convention), dependencies appended as rosbag2 Jazzy's
    ``LocalMessageDefinitionSource`` does.
-2. **Domain data.** :func:`frame_from_msg` (``WheelLoads`` -> the online
-   model's frame), :func:`sleeper_fields` / :func:`wheel_fields` (a response
-   -> message arrays), and rosbags message builders.
+2. **Domain data.** :func:`frame_from_msg`, :func:`frame_from_cdr`
+   (``WheelLoads``, as a message or as CDR bytes -> the online model's
+   frame), :func:`sleeper_fields` / :func:`wheel_fields` (a response ->
+   message arrays), and rosbags message builders.
 3. **CDR codec** (XCDR1, as ROS 2 Jazzy puts on the wire): ``WheelLoads``,
    ``SleeperResponse`` and ``WheelRailResponse`` to and from numpy arrays
    with ``np.frombuffer`` and preallocated buffers, no per-element Python.
@@ -72,6 +73,7 @@ __all__ = [
     "encode_sleeper_response",
     "encode_wheel_loads",
     "encode_wheel_rail_response",
+    "frame_from_cdr",
     "frame_from_msg",
     "interface_dir",
     "message_definition",
@@ -103,19 +105,44 @@ def frame_from_msg(msg: Any) -> WheelFrame:
     Returns
     -------
     clm_core.online.WheelFrame
-        Stamp [s] (float, from the integer-nanosecond stamp), ids, positions
-        [m], forces [N] (positive downwards), speeds [m/s].
+        Stamp [ns] (integer), ids, positions [m], forces [N] (positive
+        downwards), speeds [m/s], ``header.frame_id``.
+
+    Raises
+    ------
+    MessageError
+        A stamp outside ``builtin_interfaces/Time`` (``nanosec`` >= 1e9,
+        ``sec`` outside int32): the message is malformed.
     """
     from clm_core.online import WheelFrame
 
     wheels = list(msg.wheels)
     return WheelFrame.of(
-        stamp_ns(msg.header) / NS,
+        stamp_ns(msg.header, check=True),
         [w.id for w in wheels],
         [w.position for w in wheels],
         [w.force for w in wheels],
         [w.speed for w in wheels],
+        str(msg.header.frame_id),
     )
+
+
+def frame_from_cdr(data: Any) -> WheelFrame:
+    """Serialized ``clm_msgs/WheelLoads`` (CDR bytes, as on the wire or in a bag) -> the online model's frame.
+
+    :func:`decode_wheel_loads` (numpy codec, no per-wheel Python) and the
+    frame of its arrays: stamp [ns], ids (int64), positions [m], forces [N],
+    speeds [m/s], ``header.frame_id``.
+
+    Raises
+    ------
+    MessageError
+        Truncated or malformed bytes, a header ``nanosec`` >= 1e9.
+    """
+    from clm_core.online import WheelFrame
+
+    d = decode_wheel_loads(data)
+    return WheelFrame(d.stamp_ns, d.ids.astype(np.int64), d.positions, d.forces, d.speeds, d.frame_id)
 
 
 def sleeper_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
@@ -128,14 +155,13 @@ def sleeper_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
         ``rail_deflection``, ``sleeper_displacement``, ``area_displacement`` [m]
         (float64; positive downwards), one entry per sleeper of the window.
     """
-    s = resp.sleepers
     return {
-        "sleeper_index": np.asarray(s.sleeper_index, dtype=np.int64),
-        "position": np.asarray(s.sleeper_x, dtype=np.float64),
-        "soil_force": np.asarray(s.soil_force, dtype=np.float64),
-        "rail_deflection": np.asarray(s.rail_deflection, dtype=np.float64),
-        "sleeper_displacement": np.asarray(s.sleeper_displacement, dtype=np.float64),
-        "area_displacement": np.asarray(s.area_displacement, dtype=np.float64),
+        "sleeper_index": np.asarray(resp.sleeper_index, dtype=np.int64),
+        "position": np.asarray(resp.sleeper_x, dtype=np.float64),
+        "soil_force": np.asarray(resp.soil_force, dtype=np.float64),
+        "rail_deflection": np.asarray(resp.rail_deflection, dtype=np.float64),
+        "sleeper_displacement": np.asarray(resp.sleeper_displacement, dtype=np.float64),
+        "area_displacement": np.asarray(resp.area_displacement, dtype=np.float64),
     }
 
 

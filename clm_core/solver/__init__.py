@@ -87,9 +87,13 @@ module                 contents
                        :class:`DofLayout`
 ``loads``              :class:`LoadTable`, load sources, Hermite load weights,
                        input checks
-``records``            :class:`Snapshot`, :class:`Block`
+``records``            :class:`Snapshot`, :class:`Block`, :class:`FrameResponses`
+``coupling``           two-phase and compiled coupled steps (vehicle coupling)
+``frames``             the compiled per-frame path (:meth:`TrackSimulator.advance_frames`)
 ``_kernels``           numba kernels (``cache=True``) and their typed inputs
                        (:class:`~clm_core.solver._kernels.StepArgs`)
+``_frame_kernel``      the kernel of the per-frame path and its typed inputs
+                       (:class:`~clm_core.solver._frame_kernel.FrameArgs`)
 =====================  =========================================================
 
 Per-sleeper overrides are applied in one place, :class:`clm_core.track.SleeperValues`.
@@ -97,9 +101,10 @@ Per-sleeper overrides are applied in one place, :class:`clm_core.track.SleeperVa
 
 from __future__ import annotations
 
+from clm_core.solver._frame_kernel import FrameLoads
 from clm_core.solver.loads import LoadFunction, Loads, LoadTable
 from clm_core.solver.operators import DofLayout, Operator, OperatorCache
-from clm_core.solver.records import Block, Snapshot
+from clm_core.solver.records import Block, FrameResponses, Snapshot
 from clm_core.solver.simulator import CHUNK_STEPS, TrackSimulator
 from clm_core.solver.state import PendingStep, SimulatorState
 from clm_core.solver.window import Orientation, Placement, Window
@@ -108,6 +113,8 @@ __all__ = [
     "CHUNK_STEPS",
     "Block",
     "DofLayout",
+    "FrameLoads",
+    "FrameResponses",
     "LoadFunction",
     "LoadTable",
     "Loads",

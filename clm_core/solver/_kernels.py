@@ -279,6 +279,65 @@ def _rhs_forward(op, u, v, z, y):  # type: ignore[no-untyped-def]  # pragma: no 
         y[i] = acc * Dinv[i]
 
 
+@njit(cache=True, inline="always")
+def _back_update(op, u, v, z, y):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Fused back substitution (column sweep of ``y``) and Newmark state update, in place; ``z`` left zero.
+
+    ``u += du``, ``v = (2/dt) du - v`` with ``du = L^-T y`` (``op`` a :class:`StepOperator`).
+    """
+    first, ptr, L, a1 = op.first, op.ptr, op.L, op.a1
+    for i in range(u.shape[0] - 1, -1, -1):
+        du = y[i]
+        z[i] = 0.0
+        u[i] += du
+        v[i] = a1 * du - v[i]
+        fi = first[i]
+        pi = ptr[i] - fi
+        for k in range(fi, i):
+            y[k] -= L[pi + k] * du
+
+
+@njit(cache=True, inline="always")
+def _under_wheel(dofs, wts, k, u, v):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Rail deflection [m] and velocity [m/s] under the wheel whose 4 DOFs and weights start at ``k``."""
+    sw = 0.0
+    sv = 0.0
+    for c in range(4):
+        dof = dofs[k + c]
+        wt = wts[k + c]
+        sw += wt * u[dof]
+        sv += wt * v[dof]
+    return sw, sv
+
+
+@njit(cache=True, inline="always")
+def _sleeper_step(op, u, v, pk_force, pk_rail, force, rail, sleeper, area, row):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Update the running peaks of soil force and rail deflection; record the sleeper fields in ``row`` (>= 0)."""
+    s_dof, a_dof, r_dof, kb, db = op.s_dof, op.a_dof, op.r_dof, op.kb, op.db
+    for i in range(s_dof.shape[0]):
+        sd = s_dof[i]
+        ad = a_dof[i]
+        if ad >= 0:
+            dz = u[sd] - u[ad]
+            dv = v[sd] - v[ad]
+            xa = u[ad]
+        else:
+            dz = u[sd]
+            dv = v[sd]
+            xa = 0.0
+        fs = kb[i] * dz + db[i] * dv
+        rw = u[r_dof[i]]
+        if fs > pk_force[i]:
+            pk_force[i] = fs
+        if rw > pk_rail[i]:
+            pk_rail[i] = rw
+        if row >= 0:
+            force[row, i] = fs
+            rail[row, i] = rw
+            sleeper[row, i] = u[sd]
+            area[row, i] = xa
+
+
 @njit(cache=True)
 def run_steps(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """Advance ``a.loads.F.shape[0]`` steps in place; return the number of output rows written.
@@ -291,16 +350,12 @@ def run_steps(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
         :class:`StepOutputs`.
     """
     op, st, ld, out = a.op, a.state, a.loads, a.out
-    first, ptr, L, a1 = op.first, op.ptr, op.L, op.a1
-    s_dof, a_dof, r_dof, kb, db = op.s_dof, op.a_dof, op.r_dof, op.kb, op.db
     u, v, z, y = st.u, st.v, st.z, st.y
     pk_force, pk_rail = st.pk_force, st.pk_rail
     ldofs, lw, F = ld.ldofs, ld.lw, ld.F
     out_steps = out.steps
-    n = u.shape[0]
     S = F.shape[0]
     W = F.shape[1]
-    N = s_dof.shape[0]
     n_out = out_steps.shape[0]
     kout = 0
     for s in range(S):
@@ -318,51 +373,13 @@ def run_steps(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
             for c in range(4):
                 z[ldofs[s, 4 * w + c]] += lw[s, 4 * w + c] * fw
         _rhs_forward(op, u, v, z, y)
-        # fused: back substitution (column sweep) and state update
-        for i in range(n - 1, -1, -1):
-            du = y[i]
-            z[i] = 0.0
-            u[i] += du
-            v[i] = a1 * du - v[i]
-            fi = first[i]
-            pi = ptr[i] - fi
-            for k in range(fi, i):
-                y[k] -= L[pi + k] * du
+        _back_update(op, u, v, z, y)
         # wheel outputs
         for w in range(W):
-            sw = 0.0
-            sv = 0.0
-            for c in range(4):
-                dof = ldofs[s, 4 * w + c]
-                wt = lw[s, 4 * w + c]
-                sw += wt * u[dof]
-                sv += wt * v[dof]
-            out.wdefl[s, w] = sw
-            out.wvel[s, w] = sv
+            out.wdefl[s, w], out.wvel[s, w] = _under_wheel(ldofs[s], lw[s], 4 * w, u, v)
         # sleeper peaks every step, fields at output steps
         record = kout < n_out and out_steps[kout] == s
-        for i in range(N):
-            sd = s_dof[i]
-            ad = a_dof[i]
-            if ad >= 0:
-                dz = u[sd] - u[ad]
-                dv = v[sd] - v[ad]
-                xa = u[ad]
-            else:
-                dz = u[sd]
-                dv = v[sd]
-                xa = 0.0
-            fs = kb[i] * dz + db[i] * dv
-            rw = u[r_dof[i]]
-            if fs > pk_force[i]:
-                pk_force[i] = fs
-            if rw > pk_rail[i]:
-                pk_rail[i] = rw
-            if record:
-                out.force[kout, i] = fs
-                out.rail[kout, i] = rw
-                out.sleeper[kout, i] = u[sd]
-                out.area[kout, i] = xa
+        _sleeper_step(op, u, v, pk_force, pk_rail, out.force, out.rail, out.sleeper, out.area, kout if record else -1)
         if record:
             kout += 1
     return kout
@@ -435,6 +452,29 @@ def warm_up() -> None:
     free_response(op, u, v, np.zeros(2), rhs)
 
 
+@njit(cache=True, inline="always")
+def hermite_wheel(p, x0, Le, n_el, rail_w, rail_th, dofs, w, k):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """DOFs and cubic Hermite weights of one wheel at position ``p`` [m] into ``dofs[k:k+4]``, ``w[k:k+4]``.
+
+    The rail's node 0 is at ``x0`` [m], its ``n_el`` elements of length
+    ``Le`` [m]; a position beyond the rail is clamped to its end element.
+    """
+    xr = (p - x0) / Le
+    e = int(math.floor(xr))
+    e = min(max(e, 0), n_el - 1)
+    xi = min(max(xr - e, 0.0), 1.0)
+    xi2 = xi * xi
+    xi3 = xi2 * xi
+    dofs[k] = rail_w[e]
+    dofs[k + 1] = rail_th[e]
+    dofs[k + 2] = rail_w[e + 1]
+    dofs[k + 3] = rail_th[e + 1]
+    w[k] = 1.0 - 3.0 * xi2 + 2.0 * xi3
+    w[k + 1] = Le * (xi - 2.0 * xi2 + xi3)
+    w[k + 2] = 3.0 * xi2 - 2.0 * xi3
+    w[k + 3] = Le * (-xi2 + xi3)
+
+
 @njit(cache=True)
 def hermite_weights(
     P: np.ndarray, x0: float, Le: float, n_el: int, rail_w: np.ndarray, rail_th: np.ndarray
@@ -447,21 +487,6 @@ def hermite_weights(
     for s in range(S):
         for j in range(W):
             p = P[s, j]
-            if not np.isfinite(p):
-                continue
-            xr = (p - x0) / Le
-            e = int(math.floor(xr))
-            e = min(max(e, 0), n_el - 1)
-            xi = min(max(xr - e, 0.0), 1.0)
-            xi2 = xi * xi
-            xi3 = xi2 * xi
-            k = 4 * j
-            dofs[s, k] = rail_w[e]
-            dofs[s, k + 1] = rail_th[e]
-            dofs[s, k + 2] = rail_w[e + 1]
-            dofs[s, k + 3] = rail_th[e + 1]
-            w[s, k] = 1.0 - 3.0 * xi2 + 2.0 * xi3
-            w[s, k + 1] = Le * (xi - 2.0 * xi2 + xi3)
-            w[s, k + 2] = 3.0 * xi2 - 2.0 * xi3
-            w[s, k + 3] = Le * (-xi2 + xi3)
+            if np.isfinite(p):
+                hermite_wheel(p, x0, Le, n_el, rail_w, rail_th, dofs[s], w[s], 4 * j)
     return dofs, w

@@ -233,6 +233,14 @@ class Operator:
     _n_cols: int = 0
 
     @property
+    def kernel_plain(self) -> tuple[object, ...]:
+        """:attr:`kernel` as a plain tuple (what the per-frame kernel takes: cheap to type at a call)."""
+        plain = self.__dict__.get("_plain")
+        if plain is None:
+            plain = self.__dict__["_plain"] = tuple(self.kernel)
+        return plain
+
+    @property
     def env(self) -> Envelope:
         """The LDL^T factor of K_eff."""
         k = self.kernel

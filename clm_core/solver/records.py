@@ -1,15 +1,18 @@
-"""Result records of the streaming solver: the state at one instant, and blocks of steps.
+"""Result records of the streaming solver: the state at one instant, blocks of steps, responses to frames.
 
 :class:`Snapshot` is what :meth:`clm_core.solver.TrackSimulator.snapshot`
 returns; :class:`Block` is what :meth:`clm_core.solver.TrackSimulator.advance`
 hands to its callback, one per stretch of steps with the window in one
-position. Both are frozen and hold fresh arrays (the receiver may keep
-them). SI units, displacements and forces positive downwards.
+position; :class:`FrameResponses` is what
+:meth:`clm_core.solver.TrackSimulator.advance_frames` returns, one row per
+frame. All are frozen and hold fresh arrays (the receiver may keep them).
+SI units, displacements and forces positive downwards.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -131,4 +134,53 @@ class Block:
         )
 
 
-__all__ = ["Block", "Snapshot"]
+class FrameResponses(NamedTuple):
+    """The responses to R frames of wheel loads (N sleepers, M wheel entries), and where the run stopped.
+
+    A named tuple (cheap to build: one per call of the per-frame path).
+
+    Returned by :meth:`clm_core.solver.TrackSimulator.advance_frames`. Rows
+    ``0 .. done - 1`` hold the response of each frame done, at its response
+    step; frame ``done`` (if ``done < R``) was refused (``status``, ``rule``,
+    ``failure``), and the state is that after frame ``done - 1``.
+
+    Attributes
+    ----------
+    first_sleeper : (R,) int64 array
+        Global index of column 0 of each row's sleeper fields.
+    soil_force, rail_deflection, sleeper_displacement, area_displacement : (R, N) arrays
+        As in :class:`Snapshot` [N], [m].
+    wheel_deflection, wheel_velocity : (M,) arrays
+        Rail deflection [m] and velocity [m/s] under each wheel entry, at its
+        position in its frame.
+    done : int
+        Frames done (all: R).
+    failure : str
+        Why frame ``done`` was refused, in words ("" when all are done).
+    status : int
+        How (:mod:`clm_core.solver._frame_kernel`): ``DONE`` (0, all done),
+        ``STOP_SHIFT`` (its wheels could not be placed in the window part-way
+        through its interval), ``STOP_RESPONSE`` (its response not finite or
+        beyond the bounds), ``STOP_INVALID`` (it broke a value rule).
+    rule : int
+        With ``STOP_INVALID``: the value rule (``RULE_*``), else 0.
+    wheel : int
+        With ``STOP_INVALID``: the index in the frame of the wheel that broke
+        the rule (-1: the frame as a whole).
+    """
+
+    first_sleeper: IntArray
+    soil_force: Array
+    rail_deflection: Array
+    sleeper_displacement: Array
+    area_displacement: Array
+    wheel_deflection: Array
+    wheel_velocity: Array
+    done: int
+    failure: str
+    status: int = 0
+    rule: int = 0
+    wheel: int = -1
+
+
+__all__ = ["Block", "FrameResponses", "Snapshot"]

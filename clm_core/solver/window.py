@@ -47,6 +47,8 @@ IntArray = NDArray[np.int64]
 Orientation = Literal["forward", "backward", "free"]
 
 _TOL = 1e-9
+#: Largest |position| [m] of a wheel: global sleeper indices stay far inside int64 (1e19 m overflowed them).
+MAX_POSITION = 1e12
 
 
 @dataclass(frozen=True)
@@ -182,10 +184,14 @@ class Window:
         Raises
         ------
         InputError
-            The wheels span more bays than the allowed zone holds (``what``
-            and ``t`` [s] go into the message).
+            The wheels span more bays than the allowed zone holds, or lie
+            beyond +-:data:`MAX_POSITION` (``what`` and ``t`` [s] go into the
+            message).
         """
         d, N = self.spacing, self.n_sleepers
+        if not (abs(front) <= MAX_POSITION and abs(rear) <= MAX_POSITION):
+            raise InputError(f"{what}: wheels at t = {t:g} s span {rear:g} .. {front:g} m: beyond the line's range "
+                             f"+-{MAX_POSITION:g} m")
         lo, hi = self.allowed_range(p)
         eps = _TOL * d
         orient: Orientation
@@ -274,4 +280,4 @@ def shift_entries(dofs: IntArray, vals: Array, s: int, stride: int, n: int) -> t
     return np.ascontiguousarray(d[keep]), np.ascontiguousarray(vals[keep])
 
 
-__all__ = ["Orientation", "Placement", "Window", "shift_bays", "shift_entries"]
+__all__ = ["MAX_POSITION", "Orientation", "Placement", "Window", "shift_bays", "shift_entries"]

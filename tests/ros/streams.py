@@ -31,4 +31,4 @@ def encoded(stream: Stream) -> list[bytes]:
 def offline(stream: Stream, model: OnlineTrackModel | None = None) -> list[ResponseFrame]:
     """The answers of a fresh default model (Mevergnies, 61 sleepers, dt 1e-4 s) to the frames."""
     m = model or OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=61)
-    return [m.process(WheelFrame.of(t / NS, [0, 1], p, f)) for t, p, f in stream]
+    return [m.process(WheelFrame.of(t, [0, 1], p, f)) for t, p, f in stream]

@@ -76,7 +76,7 @@ def test_every_transition_under_traffic(ros_python, ros_domain_id) -> None:  # t
         # every answer so far is the offline answer of the same frame (a prefix of the stream, in order)
         ref = offline(stream[:answered])
         assert [s.stamp_ns for s in drv.sleepers] == [t for t, _, _ in stream[:answered]]
-        np.testing.assert_array_equal(drv.sleepers[-1].soil_force, ref[-1].sleepers.soil_force)
+        np.testing.assert_array_equal(drv.sleepers[-1].soil_force, ref[-1].soil_force)
 
         # activate: subscribed again, answering (the stream continues)
         assert drv.transition("activate")

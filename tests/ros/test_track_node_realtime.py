@@ -52,9 +52,9 @@ def test_burst_of_2000_answered_exactly_once_in_order_identical_to_offline(node,
         assert [s.stamp_ns for s in drv.sleepers] == [t for t, _, _ in stream]  # once each, in order
         assert [w.stamp_ns for w in drv.wheels] == [t for t, _, _ in stream]
         for got, got_w, ref in zip(drv.sleepers, drv.wheels, offline(stream)):
-            np.testing.assert_array_equal(got.soil_force, ref.sleepers.soil_force)
-            np.testing.assert_array_equal(got.rail_deflection, ref.sleepers.rail_deflection)
-            np.testing.assert_array_equal(got.sleeper_index, ref.sleepers.sleeper_index)
+            np.testing.assert_array_equal(got.soil_force, ref.soil_force)
+            np.testing.assert_array_equal(got.rail_deflection, ref.rail_deflection)
+            np.testing.assert_array_equal(got.sleeper_index, ref.sleeper_index)
             np.testing.assert_array_equal(got_w.rail_deflection, ref.wheel_deflection)
         d = drv.latest_diagnostics()
         assert d["received"] == d["accepted"] == d["published"] == "2000" and d["rejected"] == "0"

@@ -71,7 +71,7 @@ def test_malformed_cdr_is_counted_and_harmless(ros_python, ros_domain_id) -> Non
         assert d["rejected.malformed"] == str(len(bad)) and d["rejected"] == str(len(bad)), d
         assert d["accepted"] == "300" and d["received"] == str(300 + len(bad))
         ref = offline(stream)  # the state never saw the bad bytes
-        np.testing.assert_array_equal(drv.sleepers[-1].soil_force, ref[-1].sleepers.soil_force)
+        np.testing.assert_array_equal(drv.sleepers[-1].soil_force, ref[-1].soil_force)
     finally:
         drv.close()
     proc.terminate()

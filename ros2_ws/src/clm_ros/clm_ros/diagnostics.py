@@ -28,11 +28,13 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from clm_core.online import OnlineStats
 
 OK = DiagnosticStatus.OK
 WARN = DiagnosticStatus.WARN
@@ -56,45 +58,44 @@ def bounded(text: str, limit: int = LOG_LINE_LIMIT) -> str:
 
 @dataclass
 class Counters:
-    """What happened to the wheel-load messages; every field only grows.
+    """What the node did with the wheel-load messages; every field only grows.
 
-    ``received = accepted + sum(rejected) + not_accepted`` once nothing is
-    in flight: every message taken from the middleware is accepted (and
-    answered), rejected (counted per cause, the state untouched) or not
-    accepted because the node was not active any more (no answer owed).
+    The model's own counters (:class:`clm_core.online.OnlineStats`: accepted,
+    rejected per cause, resyncs, simulated time) are carried from model to
+    model for the node's life; these are the node's. Once nothing is in
+    flight, ``received = accepted + rejected + not_accepted``: every message
+    taken from the middleware is accepted (and answered), rejected (counted
+    per cause, ``malformed`` for undecodable bytes, the state untouched) or
+    not accepted because the node was no longer active (no answer owed).
     """
 
     received: int = 0
-    accepted: int = 0
     published: int = 0
     """Answers (pairs of SleeperResponse and WheelRailResponse) handed to the middleware."""
-    rejected: Counter[str] = field(default_factory=Counter)
-    """Per cause: the input policy's reasons, ``malformed`` (undecodable CDR), ``internal_error``."""
     not_accepted: int = 0
     """Taken while deactivating or after shutdown: discarded unprocessed, no answer owed."""
-    resyncs: int = 0
+    internal_errors: int = 0
+    """Messages lost to a defect of the node or the model (logged; should stay 0)."""
     publish_failed: int = 0
-    """Answers the middleware refused (e.g. a reliable keep-all reader that stopped acknowledging)."""
+    """Answers the middleware refused."""
     lost: int = 0
     """Wheel loads the middleware reports lost (best-effort transport)."""
     batches: int = 0
     largest_batch: int = 0
 
-    @property
-    def rejected_total(self) -> int:
-        """All rejected messages."""
-        return sum(self.rejected.values())
-
-    def values(self) -> dict[str, Any]:
-        """The counters as diagnostics key-values."""
+    def values(self, stats: OnlineStats) -> dict[str, Any]:
+        """The counters with the model's (``stats``) as diagnostics key-values."""
+        rejected = Counter(stats.rejected)
+        if self.internal_errors:
+            rejected["internal_error"] += self.internal_errors
         return {
             "received": self.received,
-            "accepted": self.accepted,
+            "accepted": stats.accepted,
             "published": self.published,
-            "rejected": self.rejected_total,
-            **{f"rejected.{k}": v for k, v in sorted(self.rejected.items())},
+            "rejected": sum(rejected.values()),
+            **{f"rejected.{k}": v for k, v in sorted(rejected.items())},
             "not_accepted": self.not_accepted,
-            "resyncs": self.resyncs,
+            "resyncs": stats.resyncs,
             "publish_failed": self.publish_failed,
             "lost": self.lost,
             "batches": self.batches,

@@ -3,12 +3,19 @@
 ``clm replay IN_BAG --out OUT_BAG`` reads ``clm_msgs/WheelLoads`` messages
 from a rosbag2 bag (mcap or sqlite3) with the suite's bag reader
 (:class:`clm_core.io.bags.BagReader`: counts cross-checked against the
-metadata, damaged chunks refused unless ``allow_partial``), passes each
-through :class:`clm_core.online.OnlineTrackModel` exactly as the track node
-does, and writes a bag (:class:`clm_core.io.bags.BagWriter`: it appears only
-when complete) with the input messages (copied byte for byte) and the
-responses (``sleeper_response``, ``wheel_rail_response``) stamped like their
-inputs. Rejected messages are counted and reported, as in the node.
+metadata, damaged chunks refused unless ``allow_partial``), decodes them with
+the numpy CDR codec (:func:`clm_core.io.messages.frame_from_cdr`), passes
+them through :class:`clm_core.online.OnlineTrackModel` in chunks
+(:meth:`~clm_core.online.OnlineTrackModel.process_batch`, bit for bit what
+the track node computes message by message), and writes a bag
+(:class:`clm_core.io.bags.BagWriter`: it appears only when complete) with the
+input messages (copied byte for byte) and the responses (``sleeper_response``,
+``wheel_rail_response``) stamped like their inputs.
+
+Refused messages (the input policy of :mod:`clm_core.online`; an undecodable
+message is ``malformed``) are counted per cause. More of them than
+``max_rejected`` allows end the replay with a :class:`ClmRosError` naming the
+counts and the first refusal of each cause, and no output bag.
 """
 
 from __future__ import annotations
@@ -19,25 +26,28 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from clm_core.errors import InputError
 from clm_core.io.bags import BagReader, BagWriter, default_qos
-from clm_core.io.errors import BagError
+from clm_core.io.errors import BagError, MessageError
 from clm_core.io.messages import (
     SLEEPER_RESPONSE,
     WHEEL_LOADS,
     WHEEL_RAIL_RESPONSE,
     encode_sleeper_response,
     encode_wheel_rail_response,
-    frame_from_msg,
+    frame_from_cdr,
     sleeper_fields,
     wheel_fields,
 )
-from clm_core.io.timebase import stamp_ns
-from clm_core.online import OnlineTrackModel, Rejected
+from clm_core.io.timebase import NS
+from clm_core.online import OnlineTrackModel, Reason, Rejected, ResponseFrame, WheelFrame
 from clm_ros.errors import ClmRosError
 
 WHEEL_RAIL = WHEEL_RAIL_RESPONSE
 SLEEPER = SLEEPER_RESPONSE
+
+
+#: Messages decoded and processed per call of the model (a chunk of the bag).
+CHUNK = 256
 
 
 @dataclass
@@ -48,6 +58,8 @@ class ReplayStats:
     accepted: int = 0
     written: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
+    first_rejections: dict[str, str] = field(default_factory=dict)
+    """The first refusal of each cause (message number and reason)."""
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     expected: int = 0
@@ -60,6 +72,11 @@ class ReplayStats:
         """Simulated seconds per wall-clock second."""
         return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else 0.0
 
+    def refusals(self) -> str:
+        """The refusals per cause, and the first of each: ``2 non_finite (first: ...); ...``."""
+        return "; ".join(f"{n} {k} (first: {self.first_rejections.get(k, '')})"
+                         for k, n in sorted(self.rejected.items()))
+
 
 def replay_bag(
     in_bag: str | Path,
@@ -71,6 +88,7 @@ def replay_bag(
     out_prefix: str = "",
     progress: Any = None,
     allow_partial: bool = False,
+    max_rejected: int | None = None,
 ) -> ReplayStats:
     """Run the wheel loads of ``in_bag`` through ``model``; write inputs and responses to ``out_bag``.
 
@@ -90,13 +108,16 @@ def replay_bag(
         Called with the number of messages done.
     allow_partial : bool
         Replay what is left of a damaged input bag (listed in ``ReplayStats.damage``).
+    max_rejected : int, optional
+        Most refused messages allowed (None: any number); one more ends the
+        replay with an error and no output.
 
     Raises
     ------
     ClmRosError
         Unreadable, empty or damaged input (unless ``allow_partial``), no
-        wheel-load topic or one of another type, an undecodable message, an
-        existing output.
+        wheel-load topic or one of another type, an existing output, more
+        refused messages than ``max_rejected``.
     """
     if Path(out_bag).exists():
         raise ClmRosError(f"output bag {str(out_bag)!r} exists; choose a new path")
@@ -111,7 +132,19 @@ def replay_bag(
                 c_s = writer.add_topic(f"{out_prefix}/sleeper_response", SLEEPER_RESPONSE)
                 c_w = writer.add_topic(f"{out_prefix}/wheel_rail_response", WHEEL_RAIL_RESPONSE)
                 w0 = time.perf_counter()
-                _run(reader, writer, model, stats, in_topic, (c_in, c_s, c_w), frame_id, progress)
+                sim0 = model.stats.simulated_ns
+                chunk: list[Any] = []
+                for m in reader.messages([in_topic]):
+                    chunk.append(m)
+                    if len(chunk) == CHUNK:
+                        _chunk(chunk, model, writer, (c_in, c_s, c_w), in_topic, frame_id, stats, max_rejected)
+                        chunk = []
+                        if progress is not None:
+                            progress(stats.read)
+                _chunk(chunk, model, writer, (c_in, c_s, c_w), in_topic, frame_id, stats, max_rejected)
+                if progress is not None:
+                    progress(stats.read)
+                stats.sim_time_s = (model.stats.simulated_ns - sim0) / NS
                 stats.wall_time_s = time.perf_counter() - w0
             stats.damage = list(reader.report.damaged)
     except BagError as exc:
@@ -119,36 +152,37 @@ def replay_bag(
     return stats
 
 
-def _run(reader: BagReader, writer: BagWriter, model: OnlineTrackModel, stats: ReplayStats, in_topic: str,
-         conns: tuple[Any, Any, Any], frame_id: str, progress: Any) -> None:
+def _chunk(chunk: list[Any], model: OnlineTrackModel, writer: BagWriter, conns: tuple[Any, Any, Any], in_topic: str,
+           frame_id: str, stats: ReplayStats, max_rejected: int | None) -> None:
+    """Decode and process a chunk of messages, write them and their responses in order."""
     c_in, c_s, c_w = conns
-    sim_t = 0.0
-    for m in reader.messages([in_topic]):
+    results: list[ResponseFrame | Rejected | None] = []
+    frames: list[WheelFrame] = []
+    for m in chunk:
+        try:
+            frames.append(frame_from_cdr(m.data))
+        except MessageError as exc:
+            results.append(model.reject(Reason.MALFORMED, f"message {stats.read + len(results) + 1} on {in_topic} "
+                                        f"cannot be decoded ({exc})"))
+            continue
+        results.append(None)
+    answers = iter(model.process_batch(frames))
+    for m, r in zip(chunk, results):
         stats.read += 1
+        res = next(answers) if r is None else r
         writer.write(c_in, m.log_ns, m.data)
-        try:
-            msg = reader.deserialize(m.data, m.msgtype)
-        except Exception as exc:
-            raise ClmRosError(
-                f"bag {str(reader.path)!r}: message {stats.read} on {in_topic} cannot be decoded ({exc})"
-            ) from None
-        before = model.sim.t
-        try:
-            resp = model.process(frame_from_msg(msg))
-        except Rejected as exc:
-            stats.rejected[exc.reason.value] += 1
+        if isinstance(res, Rejected):
+            cause = res.reason.value
+            stats.rejected[cause] += 1
+            stats.first_rejections.setdefault(cause, f"message {stats.read}: {res}")
+            if max_rejected is not None and sum(stats.rejected.values()) > max_rejected:
+                raise ClmRosError(
+                    f"{sum(stats.rejected.values())} of the first {stats.read} wheel-load messages refused, more "
+                    f"than --max-rejected {max_rejected} allows: {stats.refusals()}; no output written"
+                )
             continue
-        except InputError as exc:  # pragma: no cover - process only raises Rejected
-            stats.rejected[str(exc)] += 1
-            continue
-        if not resp.resynced:
-            sim_t += model.sim.t - before
         stats.accepted += 1
-        t_ns = stamp_ns(msg.header)
-        s, w = sleeper_fields(resp), wheel_fields(resp)
-        writer.write(c_s, m.log_ns, encode_sleeper_response(t_ns, frame_id, *s.values()))
-        writer.write(c_w, m.log_ns, encode_wheel_rail_response(t_ns, frame_id, *w.values()))
+        s, w = sleeper_fields(res), wheel_fields(res)
+        writer.write(c_s, m.log_ns, encode_sleeper_response(res.stamp_ns, frame_id, *s.values()))
+        writer.write(c_w, m.log_ns, encode_wheel_rail_response(res.stamp_ns, frame_id, *w.values()))
         stats.written += 1
-        if progress is not None:
-            progress(stats.read)
-    stats.sim_time_s = sim_t

@@ -68,10 +68,11 @@ from visualization_msgs.msg import MarkerArray
 
 from clm_core.errors import ClmError
 from clm_core.io.errors import MessageError
-from clm_core.io.messages import decode_wheel_loads, encode_sleeper_response, encode_wheel_rail_response
+from clm_core.io.messages import encode_sleeper_response, encode_wheel_rail_response, frame_from_cdr
 from clm_core.io.timebase import NS
-from clm_core.online import OnlineTrackModel, Rejected, WheelFrame
+from clm_core.online import InputPolicy, OnlineStats, OnlineTrackModel, Reason, Rejected, ResponseFrame, WheelFrame
 from clm_core.params import PARAMETER_DOCS, SOIL_MODELS, ModelParams, load_model, load_params_file
+from clm_core.settings import ONLINE_POLICY
 from clm_ros import qos
 from clm_ros.conversions import rclpy_header
 from clm_ros.diagnostics import (
@@ -97,7 +98,7 @@ NODE_NAME = "clm_track_node"
 CHUNK = 500
 
 #: Settings whose change rebuilds the model (besides the model parameters ``<section>.<name>``).
-_MODEL_SETTINGS = ("max_gap", "accept_new_wheels")
+_MODEL_SETTINGS = ("max_gap", "accept_new_wheels", *ONLINE_POLICY)
 
 
 class TrackNode(LifecycleNode):
@@ -115,7 +116,7 @@ class TrackNode(LifecycleNode):
         super().__init__(NODE_NAME, **kwargs)
         # parameters generated from the run-settings schema (clm_core.settings, clm_ros.parameters)
         declare_settings(self, ("track", "soil", "model", "params_file", "dt", "n_sleepers", "elements_per_bay",
-                                "lead_sleepers", "max_gap", "accept_new_wheels"))
+                                "lead_sleepers", "max_gap", "accept_new_wheels", *ONLINE_POLICY))
         declare_settings(self, ("publish_every", "frame_id", "diagnostics_period", "autostart", "lag_budget",
                                 "max_feedback_delay", "monitored_sleepers", "monitored_positions",
                                 "markers_period"))
@@ -125,6 +126,7 @@ class TrackNode(LifecycleNode):
 
         self._stop = stop or StopSignals()
         self.model: OnlineTrackModel | None = None
+        self.stats = OnlineStats()  # the model's counters, carried from model to model for the node's life
         self.counters = Counters()
         self._logged: set[str] = set()
         self._state = "unconfigured"
@@ -146,11 +148,9 @@ class TrackNode(LifecycleNode):
         self._last_response: Any = None
         self._every = 1
         self._frame_id = "track"
-        self._sim_ns = 0
         self._busy_s = 0.0
         self._rtf = (0, 0.0)
         self._rejected_seen = 0
-        self._last_stamp_ns: int | None = None
         self._clock = self.get_clock()
         self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self._lag = LagMonitor(self._now_ns)
@@ -231,8 +231,10 @@ class TrackNode(LifecycleNode):
             raise ClmError(f"model = {model!r}: one of {', '.join(SOIL_MODELS)}")
         return load_model(g("track").value, g("soil").value, model, over)
 
-    def build_model(self, params: ModelParams, changes: dict[str, Any] | None = None) -> OnlineTrackModel:
-        """The online model (builds and factorises the simulator: refuses unstable sets)."""
+    def build_model(self, params: ModelParams, changes: dict[str, Any] | None = None,
+                    stats: OnlineStats | None = None) -> OnlineTrackModel:
+        """The online model (builds and factorises the simulator: refuses unstable sets); it counts into the
+        node's counters unless given others (``stats``)."""
 
         def get(key: str) -> Any:
             return changes[key] if changes and key in changes else self.get_parameter(key).value
@@ -246,6 +248,8 @@ class TrackNode(LifecycleNode):
             max_gap=float(get("max_gap")),
             accept_new_wheels=bool(get("accept_new_wheels")),
             lead_sleepers=None if lead < 0 else lead,
+            stats=stats if stats is not None else self.stats,
+            policy=InputPolicy.from_settings({name: get(name) for name in ONLINE_POLICY}),
         )
 
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
@@ -262,13 +266,12 @@ class TrackNode(LifecycleNode):
         if not physics:
             return SetParametersResult(successful=True)
         try:
-            new_model = self.build_model(self.build_params(physics), physics)
+            new_model = self.build_model(self.build_params(physics), physics)  # validates (stability too)
         except (ClmError, ValueError, OSError) as exc:
             self._log("warning", f"parameter update refused: {exc}")
             return SetParametersResult(successful=False, reason=bounded(str(exc)))
         if self.model is not None and self._state in ("inactive", "active"):
             self.model = new_model
-            self._last_stamp_ns = None
             self._log("info", f"parameters updated ({', '.join(sorted(changes))}); the state restarts at the next "
                       "message")
         return SetParametersResult(successful=True)
@@ -292,7 +295,6 @@ class TrackNode(LifecycleNode):
         self._configure_error = ""
         self._every = int(g("publish_every").value)
         self._frame_id = str(g("frame_id").value)
-        self._last_stamp_ns = None
         opts = qos.overrides
         self._pub_s = self.create_lifecycle_publisher(SleeperResponse, "sleeper_response", qos.answers_qos(),
                                                       qos_overriding_options=opts())
@@ -313,12 +315,15 @@ class TrackNode(LifecycleNode):
     def _warm_up(self, params: ModelParams) -> None:
         """Run a throw-away copy of the model over a few frames: every kernel compiled (or loaded from the
         on-disk cache) and every operator factorised before the node is activated."""
-        scratch = self.build_model(params)
+        scratch = self.build_model(params, stats=OnlineStats())
         x = 10.0 * params.track.spacing
-        for k in range(3):
-            stamp = 1.0 + k * 1e-3
-            resp = scratch.process(WheelFrame.of(stamp, [0, 1], [x + 0.08 * k, x - 2.5 + 0.08 * k], [8e4, 8e4]))
-            self._encode(int(round(stamp * NS)), np.array([0, 1], dtype=np.uint32), resp)
+        frames = [WheelFrame.of(NS + k * 10**6, [0, 1], [x + 0.08 * k, x - 2.5 + 0.08 * k], [8e4, 8e4])
+                  for k in range(4)]
+        for resp in scratch.process_batch(frames[:1]) + scratch.process_batch(frames[1:]):
+            if isinstance(resp, Rejected):
+                raise ClmError(f"warm-up frame refused: {resp}")
+            self._encode(resp)
+            window_markers(resp, rclpy_header(resp.stamp_ns, self._frame_id))
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:
         """Enable the publishers, then subscribe (the node is ready when its subscription appears)."""
@@ -465,7 +470,7 @@ class TrackNode(LifecycleNode):
                 return
             self._drain(self._sub, [first])
         except Exception as exc:  # never let one message end the node
-            self.counters.rejected["internal_error"] += 1
+            self.counters.internal_errors += 1
             tb = traceback.format_exc(limit=3).strip().splitlines()
             self._log("error", f"internal error on a wheel-load message (counted): {exc!r}; "
                       f"{' | '.join(tb[-4:])}", once="internal_error")
@@ -486,50 +491,49 @@ class TrackNode(LifecycleNode):
         if raws:
             self._answer(raws)
 
-    def _decode(self, raws: list[bytes]) -> tuple[list[Any], list[WheelFrame]]:
-        datas: list[Any] = []
+    def _decode(self, raws: list[bytes]) -> list[WheelFrame]:
+        """Frames of the messages; an undecodable one is a rejection (``malformed``), counted by the model."""
+        model = self.model
+        assert model is not None
         frames: list[WheelFrame] = []
         for raw in raws:
             try:
-                d = decode_wheel_loads(raw)
+                frames.append(frame_from_cdr(raw))
             except MessageError as exc:
-                self._reject("malformed", str(exc))
-                continue
-            datas.append(d)
-            frames.append(WheelFrame(d.stamp_ns / NS, d.ids.astype(np.int64), d.positions, d.forces, d.speeds))
-        return datas, frames
+                self._reject(model.reject(Reason.MALFORMED, str(exc)))
+        return frames
 
-    def _process(self, frames: list[WheelFrame]) -> list[Any]:
-        """Every frame in one go, in order: a response or the exception that refused the frame."""
+    def _process(self, frames: list[WheelFrame]) -> list[ResponseFrame | Rejected] | None:
+        """Every frame in one go, in order: a response or the refusal of each (None: a defect, logged)."""
         model = self.model
         assert model is not None
         if self._new_stream:
             self._new_stream = False
-            if model.stats.accepted:
+            if model.last_stamp_ns is not None:
                 self.model = model = self.build_model(model.params)
-                self._last_stamp_ns = None
                 self._log("info", "wheel_loads: a new stream (every publisher had left): the state restarts")
-        out: list[Any] = []
-        for f in frames:
-            try:
-                out.append(model.process(f))
-            except Exception as exc:  # Rejected, or a defect: counted either way
-                out.append(exc)
-        return out
+        try:
+            return model.process_batch(frames)
+        except Exception as exc:  # a defect of the model: the frames are lost, counted, logged once
+            self.counters.internal_errors += len(frames)
+            self._log("error", f"internal error on {len(frames)} wheel-load message(s) (counted): {exc!r}",
+                      once="internal_error")
+            return None
 
-    def _reject(self, cause: str, text: str) -> None:
-        self.counters.rejected[cause] += 1
+    def _reject(self, exc: Rejected) -> None:
+        cause = exc.reason.value
         self._log("warning", f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): "
-                  f"{text}", once=cause)
+                  f"{exc}", once=cause)
 
-    def _encode(self, stamp_ns: int, ids: np.ndarray, resp: Any) -> tuple[bytes, bytes]:
-        s = resp.sleepers
-        fid = self._frame_id
+    def _encode(self, r: ResponseFrame) -> tuple[bytes, bytes]:
+        """Both answers to a response, serialized, stamped with the input's stamp."""
+        fid, t = self._frame_id, r.stamp_ns
         return (
-            encode_sleeper_response(stamp_ns, fid, s.sleeper_index, s.sleeper_x, s.soil_force, s.rail_deflection,
-                                    s.sleeper_displacement, s.area_displacement),
-            encode_wheel_rail_response(stamp_ns, fid, ids, resp.wheel_positions, resp.wheel_deflection,
-                                       resp.wheel_velocity),
+            encode_sleeper_response(t, fid, r.sleeper_index, r.sleeper_x, r.soil_force, r.rail_deflection,
+                                    r.sleeper_displacement, r.area_displacement),
+            # ids came in as uint32 (decoded): the cast cannot overflow
+            encode_wheel_rail_response(t, fid, r.wheel_ids.astype(np.uint32), r.wheel_positions,
+                                       r.wheel_deflection, r.wheel_velocity),
         )
 
     def _answer(self, raws: list[bytes]) -> None:
@@ -539,47 +543,39 @@ class TrackNode(LifecycleNode):
         c.received += len(raws)
         c.batches += 1
         c.largest_batch = max(c.largest_batch, len(raws))
-        datas, frames = self._decode(raws)
+        frames = self._decode(raws)
         if not frames:
             return
-        self._lag.waiting(len(frames), datas[0].stamp_ns)
+        self._lag.waiting(len(frames), frames[0].stamp_ns)
         results = self._process(frames)
+        if results is None:
+            self._lag.waiting(0, 0)
+            return
         pub_s, pub_w, mon = self._pub_s, self._pub_w, self._monitor
         every = self._every
         stamps: list[int] = []
-        last = self._last_stamp_ns
-        sim_ns = 0
-        for d, r in zip(datas, results):
-            if isinstance(r, Exception):
-                cause = r.reason.value if isinstance(r, Rejected) else "internal_error"
-                self._reject(cause, str(r))
+        for r in results:
+            if isinstance(r, Rejected):
+                self._reject(r)
                 continue
-            c.accepted += 1
-            if r.resynced:
-                c.resyncs += 1
-            elif last is not None:
-                sim_ns += d.stamp_ns - last
-            last = d.stamp_ns
             self._last_response = r
-            if every > 1 and c.accepted % every:
+            if every > 1 and self.stats.accepted % every:
                 continue
-            s_bytes, w_bytes = self._encode(d.stamp_ns, d.ids, r)
+            s_bytes, w_bytes = self._encode(r)
             try:
                 pub_s.publish(s_bytes)
                 pub_w.publish(w_bytes)
                 if mon:
-                    self._pub_mon.publish(mon.encode(d.stamp_ns, self._frame_id, r.sleepers))
-            except Exception as exc:  # a reader that stopped acknowledging, a context going down
+                    self._pub_mon.publish(mon.encode(r.stamp_ns, self._frame_id, r))
+            except Exception as exc:  # a context going down, a middleware error: counted, never fatal
                 c.publish_failed += 1
                 self._log("warning", f"an answer could not be published (counted as publish_failed): {exc}",
                           once="publish_failed")
                 continue
             c.published += 1
-            stamps.append(d.stamp_ns)
-        self._last_stamp_ns = last
+            stamps.append(r.stamp_ns)
         self._lag.answered(np.asarray(stamps, dtype=np.int64))
         self._lag.waiting(0, 0)
-        self._sim_ns += sim_ns
         self._busy_s += time.perf_counter() - w0
         self._publish_markers()
 
@@ -591,9 +587,9 @@ class TrackNode(LifecycleNode):
             return
         self._last_markers = now
         r = self._last_response
-        header = rclpy_header(int(round(r.stamp * NS)), self._frame_id)
+        header = rclpy_header(r.stamp_ns, self._frame_id)
         try:
-            self._pub_markers.publish(window_markers(r.sleepers, header))
+            self._pub_markers.publish(window_markers(r, header))
         except Exception as exc:  # a view must never stop the answers
             self._log("warning", f"track_markers not published: {exc}", once="markers")
 
@@ -603,11 +599,11 @@ class TrackNode(LifecycleNode):
         g = self.get_parameter
         budget, late = float(g("lag_budget").value), float(g("max_feedback_delay").value)
         lag = self._lag.summary(late)
-        sim_ns, busy = self._sim_ns, self._busy_s
+        sim_ns, busy = self.stats.simulated_ns, self._busy_s
         d_sim, d_busy = sim_ns - self._rtf[0], busy - self._rtf[1]
         self._rtf = (sim_ns, busy)
         state = self._state
-        rejected = self.counters.rejected_total
+        rejected = self.stats.rejected_total + self.counters.internal_errors
         new_rejections, self._rejected_seen = rejected - self._rejected_seen, rejected
         if state == "active":
             level, message = lag_level(lag, budget, late)
@@ -622,7 +618,7 @@ class TrackNode(LifecycleNode):
         model = self.model
         values = {
             "state": state,
-            **self.counters.values(),
+            **self.counters.values(self.stats),
             **lag_values(lag),
             "lag_budget_s": f"{budget:g}",
             "max_feedback_delay_s": f"{late:g}",
@@ -630,7 +626,7 @@ class TrackNode(LifecycleNode):
             "wheel_load_publishers": max(self._peers[0], 0),
             "answer_readers": max(self._peers[1], 0),
             "wheel_loads_reliability": self._reliability or "none",
-            "sim_time_s": f"{model.sim.t + model.epoch:.6f}" if model is not None else "nan",
+            "sim_time_s": f"{model.time_ns / NS:.6f}" if model is not None and model.time_ns is not None else "nan",
         }
         self._pub_diag.publish(diagnostic_array(f"{self.get_name()}: track-soil model", level, message, values,
                                                 self.get_clock().now().to_msg()))
@@ -643,7 +639,7 @@ class TrackNode(LifecycleNode):
 
     def stats(self) -> dict[str, Any]:
         """Counters (for tests and the launcher)."""
-        return self.counters.values()
+        return self.counters.values(self.stats)
 
 
 def main(args: list[str] | None = None) -> int:

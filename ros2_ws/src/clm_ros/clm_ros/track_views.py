@@ -101,7 +101,8 @@ class MonitoredSleepers:
         return [np.where(inside, a[pick], self._nan) if a.size else self._nan.copy() for a in arrays]
 
     def encode(self, stamp_ns: int, frame_id: str, sleepers: Any) -> bytes:
-        """A serialized ``SleeperResponse`` of the monitored sleepers from a window snapshot ``sleepers``."""
+        """A serialized ``SleeperResponse`` of the monitored sleepers from the window fields of ``sleepers``
+        (a :class:`clm_core.online.ResponseFrame`)."""
         f, r, s, a = self.fields(sleepers.sleeper_index, sleepers.soil_force, sleepers.rail_deflection,
                                  sleepers.sleeper_displacement, sleepers.area_displacement)
         return encode_sleeper_response(stamp_ns, frame_id, self.indices, self.positions, f, r, s, a)
@@ -118,7 +119,7 @@ def window_markers(sleepers: Any, header: Any) -> Any:
 
     Parameters
     ----------
-    sleepers : Snapshot-like
+    sleepers : ResponseFrame
         ``sleeper_x`` [m], ``soil_force`` [N], ``rail_deflection`` and
         ``sleeper_displacement`` [m] (positive downwards) of the window.
     header : std_msgs/Header

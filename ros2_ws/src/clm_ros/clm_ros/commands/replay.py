@@ -8,6 +8,7 @@ from typing import Any
 
 from clm_core.commands._common import add_model_arguments, add_window_arguments, model_from_args, quantity
 from clm_core.commands._options import add_overwrite, add_setting
+from clm_core.settings import ONLINE_POLICY
 
 
 def register(sub: Any) -> None:
@@ -25,8 +26,11 @@ def register(sub: Any) -> None:
     add_setting(p, "storage")
     add_model_arguments(p)
     add_window_arguments(p)
-    for name in ("dt", "max_gap", "accept_new_wheels", "lead_sleepers"):
+    for name in ("dt", "max_gap", "accept_new_wheels", "lead_sleepers", *ONLINE_POLICY):
         add_setting(p, name)
+    p.add_argument("--max-rejected", type=int, default=0, metavar="N",
+                   help="most wheel-load messages that may be refused by the input policy (counted per cause); one "
+                   "more ends the replay with an error and no output bag; default 0")
     add_overwrite(p, "the output bag")
     p.add_argument("--allow-partial", action="store_true",
                    help="replay what is left of a damaged input bag (missing messages or damaged chunks) instead of "
@@ -52,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from clm_core.commands._common import remove_bag
-    from clm_core.online import OnlineTrackModel
+    from clm_core.online import InputPolicy, OnlineTrackModel
     from clm_core.progress import Progress
     from clm_ros.errors import ClmRosError
     from clm_ros.replay import replay_bag
@@ -72,11 +76,16 @@ def run(args: argparse.Namespace) -> int:
         max_gap=args.max_gap,
         accept_new_wheels=args.accept_new_wheels,
         lead_sleepers=args.lead_sleepers,
+        policy=InputPolicy.from_settings(vars(args)),
     )
+    if args.max_rejected < 0:
+        print(f"clm replay: error: --max-rejected = {args.max_rejected}: must be >= 0", file=sys.stderr)
+        return 2
     try:
         with Progress(_message_count(args.in_bag, args.topic), "clm replay", unit="msg") as bar:
             stats = replay_bag(args.in_bag, out, model, topic=args.topic, storage=args.storage,
-                               progress=bar.update_to, allow_partial=getattr(args, "allow_partial", False))
+                               progress=bar.update_to, allow_partial=getattr(args, "allow_partial", False),
+                               max_rejected=args.max_rejected)
     except BaseException as exc:
         shutil.rmtree(out, ignore_errors=True)  # no partial output bag
         if isinstance(exc, ClmRosError):

@@ -1,0 +1,221 @@
+"""The compiled per-frame path of the streaming simulator: many stamped wheel-load frames in one go.
+
+:class:`FrameSteps` is the part of :class:`clm_core.solver.TrackSimulator`
+that advances through *frames* (one ``clm_msgs/WheelLoads`` message each:
+a stamp, wheel positions and forces) rather than through steps: the online
+model (:mod:`clm_core.online`) hands it every waiting frame at once, and one
+compiled kernel (:func:`clm_core.solver._frame_kernel.run_frames`) integrates
+through them, interpolating the wheels linearly between the frames' stamps,
+computing the Hermite load weights and recording each frame's response. It
+returns to Python only when the window must move (a shift by whole bays,
+:meth:`TrackSimulator._move`, then it resumes) or when a frame fails.
+
+A frame fails when its response is not finite or beyond the given bounds,
+or when its wheels cannot be placed in the window part-way through its
+interval. The state is then restored to what it was after the frame before
+it: from a copy taken at the first kernel call, by running the frames before
+the failing one again (the computation is deterministic: the same frames
+from the same state give the same bits). The result says which frame failed
+and why; the caller refuses it and carries on with the next.
+
+Every frame goes through the same kernel whether it comes alone or with
+others, and the kernel's state between two calls (displacements,
+velocities, peaks, the load vector of the last step, the previous frame's
+wheels) is exactly what it holds inside one call, so the responses do not
+depend on how a stream is split into calls.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from clm_core.errors import InputError
+from clm_core.solver import _frame_kernel as fk
+from clm_core.solver.records import FrameResponses
+
+if TYPE_CHECKING:
+    from clm_core.solver import _kernels as kern
+    from clm_core.solver.operators import DofLayout
+    from clm_core.solver.state import SimulatorState
+    from clm_core.solver.window import Placement, Window
+
+Array = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+_TOL = 1e-9
+
+
+def truncated(loads: fk.FrameLoads, r: int) -> fk.FrameLoads:
+    """The first ``r`` frames of ``loads`` (same arrays, previous-frame buffers shared)."""
+    return loads._replace(ticks=loads.ticks[: r + 1], k_end=loads.k_end[:r], offsets=loads.offsets[: r + 1])
+
+
+class FrameSteps:
+    """Advance through stamped frames of wheel loads (a mixin of :class:`clm_core.solver.TrackSimulator`)."""
+
+    # provided by TrackSimulator
+    _s: SimulatorState
+    _window: Window
+    _layout: DofLayout
+    _z: Array
+    _y: Array
+
+    if TYPE_CHECKING:
+
+        @property
+        def n_sleepers(self) -> int: ...
+
+        def time_of_step(self, n: int) -> float: ...
+
+        def _move(self, p: Placement) -> None: ...
+
+        def _step_state(self) -> kern.StepState: ...
+
+    _frame_geo: tuple[Placement, tuple[object, ...]] | None = None
+    _frame_backup: tuple[fk.FrameBackup, tuple[object, ...]] | None = None  # the restore buffers, also plain
+    _frame_ctl: tuple[IntArray, Array]  # the kernel's control registers (set by TrackSimulator)
+
+    def advance_frames(
+        self, loads: fk.FrameLoads, max_force: float = math.inf, max_displacement: float = math.inf
+    ) -> FrameResponses:
+        """Advance through R frames of wheel loads; the response at each frame's step.
+
+        Parameters
+        ----------
+        loads : FrameLoads
+            The frames (:class:`clm_core.solver._frame_kernel.FrameLoads`):
+            times in integer ticks with the step a whole number of ticks,
+            each frame's response step ``k_end`` (steps since
+            :meth:`initialize`, non-decreasing, not before the current step),
+            the wheel entries of every frame (slot, position [m], force [N],
+            finite) and the previous frame's wheels per slot (``P_prev``,
+            ``F_prev``: updated in place to the last frame done).
+        max_force : float
+            Bound on the magnitude of the soil forces of a response [N].
+        max_displacement : float
+            Bound on the magnitude of the displacements of a response and of
+            the rail deflection under the wheels [m].
+
+        Returns
+        -------
+        FrameResponses
+            One row per frame done; ``done < R`` when a frame failed (its
+            response not finite or beyond a bound, or its wheels not fitting in
+            the window part-way): the state is then that after the frame
+            before it, and the frames after it are not done.
+
+        Raises
+        ------
+        InputError
+            A response step before the current step (time going backwards).
+        """
+        s = self._s
+        R, W, M = len(loads.k_end), len(loads.P_prev), len(loads.positions)
+        if R and loads.k_end[0] < s.k:
+            raise InputError(f"advance_frames: frame 0 ends at step {int(loads.k_end[0])}, before the current step "
+                             f"{s.k} (time going backwards)")
+        sleepers = np.empty((4, R, self.n_sleepers))
+        wheels = np.empty((2, M))
+        f8 = np.empty(6 * W)
+        ctl, ctl_f = self._frame_ctl
+        ctl_f[fk.CTF_MAX_FORCE] = max_force
+        ctl_f[fk.CTF_MAX_DISP] = max_displacement
+        out = fk.FrameOutputs(sleepers[0], sleepers[1], sleepers[2], sleepers[3], wheels[0], wheels[1],
+                              np.empty(4 * W, dtype=np.int64), f8[: 4 * W], f8[4 * W: 5 * W], f8[5 * W:], ctl, ctl_f)
+        first = np.empty(R, dtype=np.int64)
+        saved = (s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F)
+        done, status, failure = self._frames(loads, out, first)
+        if status == fk.STOP_INVALID:  # nothing of the frame was done: the state is that after the one before
+            rule, wheel = int(ctl[fk.CTL_RULE]), int(ctl[fk.CTL_WHEEL])
+            return FrameResponses(first, sleepers[0], sleepers[1], sleepers[2], sleepers[3], wheels[0], wheels[1],
+                                  done, failure, status, rule, wheel)
+        if status != fk.DONE:
+            bk = self._backup(W)
+            s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F = saved
+            s.u[:] = bk.u
+            s.v[:] = bk.v
+            s.pk_force[:] = bk.pk_force
+            s.pk_rail[:] = bk.pk_rail
+            loads.P_prev[:] = bk.P_prev
+            loads.F_prev[:] = bk.F_prev
+            if done:
+                again, st, why = self._frames(truncated(loads, done), out, first)
+                if st != fk.DONE or again != done:  # pragma: no cover - the computation is deterministic
+                    raise RuntimeError(f"advance_frames: replay of {done} frames gave {again} ({why})")
+        return FrameResponses(first, sleepers[0], sleepers[1], sleepers[2], sleepers[3], wheels[0], wheels[1],
+                              done, failure, status)
+
+    def _frames(self, loads: fk.FrameLoads, out: fk.FrameOutputs, first: IntArray) -> tuple[int, int, str]:
+        """Run the kernel through ``loads``, moving the window when it asks; (frames done, status, failure)."""
+        ctl = out.ctl
+        s = self._s
+        ctl[fk.CTL_K] = s.k
+        ctl[fk.CTL_FRAME] = 0
+        ctl[fk.CTL_BACKUP] = 1
+        R = len(loads.k_end)
+        self._backup(len(loads.P_prev))
+        assert self._frame_backup is not None
+        args = (tuple(loads), self._frame_backup[1], tuple(out))
+        done = 0
+        while True:
+            status = fk.run_frames((s.op.kernel_plain, (s.u, s.v, self._z, self._y, s.prev_dofs, s.prev_vals,
+                                    s.pk_force, s.pk_rail), self._geometry(), *args))
+            k, j, _, q, _, rule, wheel = ctl.tolist()
+            ctl[fk.CTL_BACKUP] = 0
+            first[done:j] = s.placement.first
+            done = j
+            s.k = k
+            if q >= 0:
+                s.prev_dofs, s.prev_vals = out.prev_dofs[:q], out.prev_vals[:q]
+                s.pos, s.F = out.pos, out.F
+            if status == fk.DONE:
+                return R, status, ""
+            if status == fk.STOP_INVALID:
+                return j, status, f"frame {j} breaks value rule {rule} (wheel {wheel})"
+            if status == fk.STOP_RESPONSE:
+                return j, status, (f"the response is not finite or beyond its bounds (soil force "
+                                   f"{out.ctl_f[fk.CTF_MAX_FORCE]:g} N, displacement {out.ctl_f[fk.CTF_MAX_DISP]:g} m)")
+            front, rear = float(out.ctl_f[fk.CTF_FRONT]), float(out.ctl_f[fk.CTF_REAR])
+            t = self.time_of_step(s.k + 1)
+            win = self._window
+            try:
+                if not win.follow:
+                    win.check_inside(s.placement, front, rear, "advance_frames", t)
+                p = win.required(s.placement, front, rear, "advance_frames", t)
+            except InputError as exc:
+                return j, fk.STOP_SHIFT, str(exc)
+            self._move(p)
+
+    def _geometry(self) -> tuple[object, ...]:
+        """Rail and allowed zone of the current placement, as the kernel takes it (cached for the last placement)."""
+        p = self._s.placement
+        cached = self._frame_geo
+        if cached is not None and cached[0] == p:
+            return cached[1]
+        lay = self._layout
+        lo, hi = self._window.allowed_range(p)
+        eps = _TOL * self._window.spacing
+        geo = tuple(fk.FrameGeometry(float(lay.node_x_rel[0] + p.first * lay.spacing), float(lay.Le),
+                                     int(lay.n_el), lay.rail_w, lay.rail_th, lo - eps, hi + eps))
+        self._frame_geo = (p, geo)
+        return geo
+
+    def _backup(self, W: int) -> fk.FrameBackup:
+        """The restore buffers for a run (state sizes fixed; at least ``W`` wheel slots)."""
+        cached = self._frame_backup
+        if cached is None or cached[0].P_prev.shape[0] != W:
+            s = self._s
+            bk = fk.FrameBackup(np.empty_like(s.u), np.empty_like(s.v), np.empty_like(s.pk_force),
+                                np.empty_like(s.pk_rail), np.empty(W), np.empty(W))
+            if cached is not None:
+                old = cached[0]
+                bk = bk._replace(u=old.u, v=old.v, pk_force=old.pk_force, pk_rail=old.pk_rail)
+            cached = self._frame_backup = (bk, tuple(bk))
+        return cached[0]
+
+
+__all__ = ["FrameSteps", "truncated"]
