@@ -95,7 +95,8 @@ def test_every_transition_under_traffic(ros_python, ros_domain_id) -> None:  # t
         drv.send(msgs[2550:2750], expected_answers=200)
         assert len(drv.sleepers) == before + 200
         c = counts(drv)
-        assert c["accepted"] == len(drv.sleepers) and c["received"] >= 2400
+        assert c["accepted"] == len(drv.sleepers)
+        assert c["received"] == c["accepted"] + c["rejected"] + c["not_accepted"] <= 2750
         # shutdown from active: finalized, never answers again
         for m in msgs[2750:3750]:
             drv.pub.publish(m)

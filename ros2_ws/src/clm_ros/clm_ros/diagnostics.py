@@ -144,6 +144,7 @@ class LagMonitor:
         self._waiting = 0
         self._oldest_ns = 0
         self._mismatched = 0
+        self._reason = ""  # why the last answers' lag could not be measured (kept through idle periods)
 
     def waiting(self, count: int, oldest_stamp_ns: int) -> None:
         """The data path took ``count`` frames (0: none left), the oldest stamped ``oldest_stamp_ns``."""
@@ -181,12 +182,13 @@ class LagMonitor:
         if abs(oldest) >= CLOCK_MISMATCH_S:
             oldest, bad = nan, bad + 1
         if bad and not ok.any():
-            return LagSummary(0, nan, nan, nan, nan, waiting, nan,
-                              "stamps are not on the node's clock (sim-time stamps: set use_sim_time and publish "
-                              "/clock)")
+            self._reason = ("stamps are not on the node's clock (sim-time stamps: set use_sim_time and publish "
+                            "/clock)")
+        elif ok.any():
+            self._reason = ""
         lag = lag[ok]
         if not lag.size:
-            return LagSummary(0, nan, nan, nan, nan, waiting, oldest)
+            return LagSummary(0, nan, nan, nan, nan, waiting, oldest, self._reason)
         return LagSummary(
             int(lag.size), float(np.median(lag)), float(np.percentile(lag, 99)), float(lag.max()),
             float(np.mean(lag > max_feedback_delay)), waiting, oldest,
