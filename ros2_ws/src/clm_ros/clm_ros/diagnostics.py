@@ -139,11 +139,9 @@ class LagMonitor:
 
     def __init__(self, now_ns: Callable[[], int]) -> None:
         self.now_ns = now_ns
-        self._lock = threading.Lock()
-        self._lags: list[np.ndarray] = []
+        self._answers: list[tuple[int, list[int]]] = []  # (publish time, stamps) [ns]
         self._waiting = 0
         self._oldest_ns = 0
-        self._mismatched = 0
         self._reason = ""  # why the last answers' lag could not be measured (kept through idle periods)
 
     def waiting(self, count: int, oldest_stamp_ns: int) -> None:
@@ -151,23 +149,15 @@ class LagMonitor:
         self._waiting = count
         self._oldest_ns = oldest_stamp_ns
 
-    def answered(self, stamps_ns: np.ndarray) -> None:
-        """Answers to frames stamped ``stamps_ns`` [ns] were just published."""
-        now = self.now_ns()
-        if now <= 0 or not stamps_ns.size:
-            if stamps_ns.size:
-                with self._lock:
-                    self._mismatched += int(stamps_ns.size)
-            return
-        lag = (now - stamps_ns) * 1e-9
-        with self._lock:
-            self._lags.append(lag)
+    def answered(self, stamps_ns: list[int]) -> None:
+        """Answers to frames stamped ``stamps_ns`` [ns] were just published (kept as they are: the per-message
+        path does no arithmetic; :meth:`summary` does it once per period)."""
+        if stamps_ns:
+            self._answers.append((self.now_ns(), stamps_ns))  # list.append: atomic under the GIL
 
     def summary(self, max_feedback_delay: float) -> LagSummary:
         """Figures since the last call (and reset for the next period)."""
-        with self._lock:
-            parts, self._lags = self._lags, []
-            mismatched, self._mismatched = self._mismatched, 0
+        parts, self._answers = self._answers, []
         now = self.now_ns()
         nan = float("nan")
         waiting, oldest = self._waiting, nan
@@ -176,9 +166,10 @@ class LagMonitor:
         if now <= 0:
             return LagSummary(0, nan, nan, nan, nan, waiting, nan,
                               "use_sim_time is set and no /clock has arrived")
-        lag = np.concatenate(parts) if parts else np.zeros(0)
+        lag = np.concatenate([(t - np.asarray(st, dtype=np.int64)) * 1e-9 for t, st in parts if t > 0]
+                             or [np.zeros(0)])
         ok = np.abs(lag) < CLOCK_MISMATCH_S
-        bad = int(lag.size - ok.sum()) + mismatched
+        bad = int(lag.size - ok.sum()) + sum(len(st) for t, st in parts if t <= 0)
         if abs(oldest) >= CLOCK_MISMATCH_S:
             oldest, bad = nan, bad + 1
         if bad and not ok.any():
