@@ -197,12 +197,43 @@ def lag_figures(stamps: list[int], recv: list[int]) -> dict[str, float]:
 
 
 def side_by_side(sleepers: int, rate: float, frames: int = 1500) -> dict[str, float]:
-    """Kernel and model-alone CPU time per message [us] in this process, for the same steps."""
+    """CPU time per message [us] in this process for the same steps: the kernel in a tight loop
+    (:func:`online_path.kernel_per_call`), the model alone in a tight loop, and, at the node's cadence (one
+    message per period, idle in between, as the node runs), the model and its compiled frame kernel
+    (``run_frames``, timed around its calls)."""
+    from clm_core.online import OnlineTrackModel
+    from clm_core.solver import _frame_kernel as fk
+
     params = load_model("mevergnies", "mevergnies", "clm")
     steps = round(1.0 / (rate * TRACK["dt"]))
     kc, _ = kernel_per_call(params, sleepers, steps, 1000)
     pc, _ = process_per_frame(params, sleepers, stream(frames, rate))
-    return {"kernel_us": kc * 1e6, "model_us": pc * 1e6, "steps": float(steps)}
+    inner, spent = fk.run_frames, [0.0]
+
+    def timed(*args: Any) -> Any:
+        c = time.thread_time()
+        try:
+            return inner(*args)
+        finally:
+            spent[0] += time.thread_time() - c
+
+    model = OnlineTrackModel(params, TRACK["dt"], sleepers)
+    todo = stream(frames, rate)
+    model.process(todo[0])
+    fk.run_frames = timed  # benchmark instrumentation: the frame path looks the kernel up at each call
+    try:
+        total, next_t = 0.0, time.perf_counter()
+        for f in todo[1:]:
+            next_t += 1.0 / rate
+            c = time.thread_time()
+            model.process_batch([f])
+            total += time.thread_time() - c
+            time.sleep(max(next_t - time.perf_counter(), 0.0))
+    finally:
+        fk.run_frames = inner
+    n = len(todo) - 1
+    return {"kernel_us": kc * 1e6, "model_us": pc * 1e6, "steps": float(steps),
+            "kernel_cadence_us": 1e6 * spent[0] / n, "model_cadence_us": 1e6 * total / n}
 
 
 # ---------------------------------------------------------------------------------------------- cases
@@ -240,7 +271,10 @@ def case_track(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         rtf = [float(d["real_time_factor"]) for d in lis.diags if d.get("real_time_factor", "nan") != "nan"]
         out = steady_cpu(samples, proc.pid)
         out.update(lag_figures(lis.stamps, lis.recv))
+        dp = [float(d["data_path_cpu_us_per_message"]) for d in lis.diags
+              if d.get("data_path_cpu_us_per_message", "nan") != "nan"]
         out.update({"sent": float(n), "rtf_min": min(rtf, default=float("nan")),
+                    "data_path_us": float(np.median(dp)) if dp else float("nan"),
                     "rtf_median": float(np.median(rtf)) if rtf else float("nan"),
                     "diagnostics": lis.diags[-1]})
     out.update(side_by_side(a.sleepers, a.rate))
@@ -334,12 +368,15 @@ def report(case: str, runs: list[dict[str, Any]], a: argparse.Namespace) -> None
         print(f"  worst: {min(r['clearance'] for r in runs):.1f}x real time (target >= 5)")
         return
     for i, r in enumerate(runs):
-        ratio = r.get("track_cpu_us_per_message", float("nan")) / r["kernel_us"]
+        node = r.get("track_cpu_us_per_message", float("nan"))
         line = (f"  run {i + 1}: lag median {ms(r['lag_median_s'])} p99 {ms(r['lag_p99_s'])} max {ms(r['lag_max_s'])}"
                 f" (>5 ms: {int(r['over_5ms'])}, >20 ms: {int(r['over_20ms'])}) of {int(r['answers'])} answers\n"
-                f"         track node {r.get('track_cpu_us_per_message', float('nan')):6.0f} us CPU/message = "
-                f"{ratio:.2f} x kernel ({r['kernel_us']:.0f} us for {int(r['steps'])} steps; model alone "
-                f"{r['model_us']:.0f} us)")
+                f"         track node {node:6.0f} us CPU/message = {node / r['kernel_cadence_us']:.2f} x the compiled "
+                f"kernel at the same cadence ({r['kernel_cadence_us']:.0f} us for {int(r['steps'])} steps; "
+                f"model alone {r['model_cadence_us']:.0f} us)\n"
+                f"         tight loops: kernel {r['kernel_us']:.0f} us (node = {node / r['kernel_us']:.2f} x), "
+                f"model alone {r['model_us']:.0f} us; node's own data path {r.get('data_path_us', float('nan')):.0f} "
+                "us (its diagnostics)")
         if "vehicle_cpu_us_per_message" in r:
             line += f"; vehicle node {r['vehicle_cpu_us_per_message']:.0f} us CPU/message"
         if "rtf_min" in r:
@@ -349,10 +386,10 @@ def report(case: str, runs: list[dict[str, Any]], a: argparse.Namespace) -> None
         line += f"\n         machine busy {r.get('machine_busy_pct', float('nan')):.0f} %, load {r['loadavg']:.2f}"
         print(line)
     worst = max(runs, key=lambda r: r["lag_p99_s"])
-    ratios = [r.get("track_cpu_us_per_message", float("nan")) / r["kernel_us"] for r in runs]
+    ratios = [r.get("track_cpu_us_per_message", float("nan")) / r["kernel_cadence_us"] for r in runs]
     print(f"  worst run: lag median {ms(worst['lag_median_s'])}, p99 {ms(worst['lag_p99_s'])}; track CPU/message "
           f"up to {max(r.get('track_cpu_us_per_message', float('nan')) for r in runs):.0f} us, up to "
-          f"{max(ratios):.2f} x kernel (target <= 2)"
+          f"{max(ratios):.2f} x kernel at the same cadence (target <= 2)"
           + (f"; track RTF min {min(r['rtf_min'] for r in runs):.1f} (target >= 2)" if "rtf_min" in runs[0] else ""))
 
 
