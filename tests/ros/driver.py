@@ -11,9 +11,11 @@ sleeps).
 
 from __future__ import annotations
 
+import contextlib
 import os
+import subprocess
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import rclpy
@@ -190,3 +192,36 @@ def status_dict(msg: Any) -> dict[str, str]:
     st = msg.status[0]
     level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
     return {kv.key: kv.value for kv in st.values} | {"_level": str(level), "_message": st.message}
+
+
+NODE_SCRIPT = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
+
+
+class NodeRun:
+    """A track-node process and the driver talking to it; ``err`` (its log) once it has exited."""
+
+    def __init__(self, proc: subprocess.Popen[str], drv: Driver) -> None:
+        self.proc = proc
+        self.drv = drv
+        self.err = ""
+
+
+@contextlib.contextmanager
+def track_node(ros_python: Any, domain_id: int, *params: str, discover: bool = True,
+               **driver_options: Any) -> Iterator[NodeRun]:
+    """Start the track node (``-p`` ``params``, diagnostics every 0.1 s) and a :class:`Driver`; at the end close
+    the driver, SIGTERM the node and check it exits 0 (its log in ``NodeRun.err``)."""
+    args = ["--ros-args", "-p", "diagnostics_period:=0.1"]
+    for p in params:
+        args += ["-p", p]
+    proc = ros_python.spawn(NODE_SCRIPT, args, name="track_node")
+    run = NodeRun(proc, Driver(domain_id, **driver_options))
+    try:
+        if discover:
+            run.drv.wait_discovery()
+        yield run
+    finally:
+        run.drv.close()
+    proc.terminate()
+    _, run.err = ros_python.wait(proc, 20)
+    assert proc.returncode == 0, run.err

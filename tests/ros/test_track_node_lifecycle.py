@@ -22,14 +22,12 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from driver import Driver, status_dict
+from driver import Driver, status_dict, track_node
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from streams import encoded, frames, offline
 
 from clm_core.io.timebase import NS
-
-NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
 
 
 def spin_for(drv: Driver, seconds: float) -> None:
@@ -48,12 +46,10 @@ def publishers(drv: Driver, topic: str) -> int:
 
 
 def test_every_transition_under_traffic(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.1"], name="track_node")
-    drv = Driver(ros_domain_id)
     stream = frames(6000, 5 * NS)
     msgs = encoded(stream)
-    try:
-        drv.wait_discovery()
+    with track_node(ros_python, ros_domain_id) as run:
+        drv = run.drv
         assert drv.state() == "active"
         drv.send(msgs[:200], expected_answers=200)
         # deactivate right behind a burst: the transition waits for the batch being answered; whatever was
@@ -102,6 +98,7 @@ def test_every_transition_under_traffic(ros_python, ros_domain_id) -> None:  # t
             drv.pub.publish(m)
         assert drv.transition("active_shutdown")
         assert drv.state() == "finalized"
+        spin_for(drv, 1.0)  # the answers sent before the transition arrive
         n = len(drv.sleepers)
         for m in msgs[3750:3850]:
             drv.pub.publish(m)
@@ -111,19 +108,13 @@ def test_every_transition_under_traffic(ros_python, ros_domain_id) -> None:  # t
         assert d["state"] == "finalized" and d["_level"] == "3"  # STALE
         assert int(d["received"]) == int(d["accepted"]) + int(d["rejected"]) + int(d["not_accepted"])
         assert int(d["accepted"]) == n
-    finally:
-        drv.close()
-    assert proc.poll() is None  # finalized, still alive for its lifecycle services
-    proc.terminate()
-    assert proc.wait(20) == 0
+        assert run.proc.poll() is None  # finalized, still alive for its lifecycle services
 
 
 @pytest.mark.parametrize("path", ["inactive", "unconfigured"])
 def test_shutdown_from_inactive_and_unconfigured(ros_python, ros_domain_id, path) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "autostart:=false", "-p", "diagnostics_period:=0.1"],
-                            name="track_node")
-    drv = Driver(ros_domain_id)
-    try:
+    with track_node(ros_python, ros_domain_id, "autostart:=false", discover=False) as run:
+        drv = run.drv
         assert drv.state() == "unconfigured"
         # an invalid physics parameter is refused while unconfigured too, with its reason
         r = drv.set_double("soil.dc", -400e3)
@@ -133,7 +124,7 @@ def test_shutdown_from_inactive_and_unconfigured(ros_python, ros_domain_id, path
         assert not drv.call(ChangeState, "change_state", ChangeState.Request(
             transition=Transition(id=99))).success
         assert not drv.transition("activate")
-        assert proc.poll() is None and drv.state() == "unconfigured"
+        assert run.proc.poll() is None and drv.state() == "unconfigured"
         if path == "inactive":
             assert drv.transition("configure")
             for m in encoded(frames(50, 5 * NS)):
@@ -148,17 +139,11 @@ def test_shutdown_from_inactive_and_unconfigured(ros_python, ros_domain_id, path
             drv.pub.publish(m)
         spin_for(drv, 0.5)
         assert drv.sleepers == [] and counts(drv)["received"] == 0
-    finally:
-        drv.close()
-    proc.terminate()
-    assert proc.wait(20) == 0
 
 
 def test_configure_cleanup_cycles_add_no_publishers(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "autostart:=false", "-p", "diagnostics_period:=0.1"],
-                            name="track_node")
-    drv = Driver(ros_domain_id)
-    try:
+    with track_node(ros_python, ros_domain_id, "autostart:=false", discover=False) as run:
+        drv = run.drv
         assert drv.state() == "unconfigured"
         for _ in range(46):
             assert drv.transition("configure")
@@ -171,7 +156,3 @@ def test_configure_cleanup_cycles_add_no_publishers(ros_python, ros_domain_id) -
         drv.send(encoded(frames(100, 5 * NS)), expected_answers=100)
         assert len(drv.sleepers) == 100
         assert status_dict(drv.diagnostics[-1][1])["state"] == "active"
-    finally:
-        drv.close()
-    proc.terminate()
-    assert proc.wait(20) == 0

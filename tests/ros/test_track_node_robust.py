@@ -19,18 +19,16 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from driver import Driver
+from driver import NODE_SCRIPT, Driver, track_node
 from streams import encoded, frames, offline
 
 from clm_core.io.messages import encode_wheel_loads
 from clm_core.io.timebase import NS
 
-NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
-
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_exits_zero_within_2_s_under_load(ros_python, ros_domain_id, sig) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.1"], name="track_node")
+    proc = ros_python.spawn(NODE_SCRIPT, ["--ros-args", "-p", "diagnostics_period:=0.1"], name="track_node")
     drv = Driver(ros_domain_id)
     try:
         drv.wait_discovery()
@@ -50,8 +48,6 @@ def test_signal_exits_zero_within_2_s_under_load(ros_python, ros_domain_id, sig)
 
 
 def test_malformed_cdr_is_counted_and_harmless(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.1"], name="track_node")
-    drv = Driver(ros_domain_id)
     stream = frames(300, 5 * NS)
     good = encoded(stream)
     t = stream[100][0] + 500
@@ -64,20 +60,15 @@ def test_malformed_cdr_is_counted_and_harmless(ros_python, ros_domain_id) -> Non
         valid[:8] + struct.pack("<I", 2 * 10**9) + valid[12:],  # nanosec >= 1e9
         valid[:30],  # cut in the middle of the wheels
     ]
-    try:
-        drv.wait_discovery()
+    with track_node(ros_python, ros_domain_id) as run:
+        drv = run.drv
         drv.send(good[:101] + bad + good[101:], expected_answers=300)
         d = drv.latest_diagnostics()
         assert d["rejected.malformed"] == str(len(bad)) and d["rejected"] == str(len(bad)), d
         assert d["accepted"] == "300" and d["received"] == str(300 + len(bad))
         ref = offline(stream)  # the state never saw the bad bytes
         np.testing.assert_array_equal(drv.sleepers[-1].soil_force, ref[-1].soil_force)
-    finally:
-        drv.close()
-    proc.terminate()
-    _, err = ros_python.wait(proc, 20)
-    assert proc.returncode == 0
-    assert err.count("rejected (malformed") == 1, err  # logged once per cause
+    assert run.err.count("rejected (malformed") == 1, run.err  # logged once per cause
 
 
 PEER = """
@@ -122,13 +113,12 @@ SHORT_LEASE = """<?xml version="1.0" encoding="UTF-8" ?>
 
 
 def test_peer_killed_node_keeps_running_and_answers_the_next(ros_python, ros_domain_id, tmp_path) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.1"], name="track_node")
-    drv = Driver(ros_domain_id, wheel_qos=None)  # the peers are the only wheel-load publishers
     profile = tmp_path / "short_lease.xml"
     profile.write_text(SHORT_LEASE)
-    ros_python.env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)  # the peers die quickly visible (2 s lease)
-    try:
-        drv.wait_discovery()
+    # the peers are the only wheel-load publishers (the driver has none)
+    with track_node(ros_python, ros_domain_id, wheel_qos=None) as run:
+        drv, proc = run.drv, run.proc
+        ros_python.env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)  # the peers die quickly visible (2 s lease)
         peer = ros_python.spawn(PEER, ["100"], name="peer")
         line = peer.stdout.readline()  # type: ignore[union-attr]
         assert line.startswith("answers"), line
@@ -149,29 +139,18 @@ def test_peer_killed_node_keeps_running_and_answers_the_next(ros_python, ros_dom
         assert d["publish_failed"] == "0" and d.get("rejected.stamp_not_increasing") is None, d
         peer2.kill()
         peer2.wait(10)
-    finally:
-        drv.close()
-    proc.terminate()
-    _, err = ros_python.wait(proc, 20)
-    assert proc.returncode == 0
-    assert "no publisher any more (peer gone)" in err and "publisher(s) back" in err, err
+    assert "no publisher any more (peer gone)" in run.err and "publisher(s) back" in run.err, run.err
 
 
 def test_log_lines_are_bounded(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.1"], name="track_node")
-    drv = Driver(ros_domain_id)
     stream = frames(20, 5 * NS)
-    try:
-        drv.wait_discovery()
+    with track_node(ros_python, ros_domain_id) as run:
+        drv = run.drv
         drv.send(encoded(stream), expected_answers=20)
         ids = np.arange(1000, 1200)  # two hundred unknown wheels: the reason would list them all
         t = stream[-1][0] + 10**6
         drv.send([encode_wheel_loads(t, "track", ids, np.full(ids.size, 31.0), np.zeros(ids.size))],
                  expected_answers=0)
         drv.wait_for(lambda: drv.latest_diagnostics().get("rejected.unknown_id") == "1", 20, "the rejection")
-    finally:
-        drv.close()
-    proc.terminate()
-    _, err = ros_python.wait(proc, 20)
-    lines = [ln for ln in err.splitlines() if "unknown_id" in ln]
+    lines = [ln for ln in run.err.splitlines() if "unknown_id" in ln]
     assert lines and all(len(ln) < 600 for ln in lines), [len(ln) for ln in lines]

@@ -22,21 +22,20 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from clm_msgs.msg import SleeperResponse
-from driver import SENSOR_QOS, Driver
+from clm_msgs.msg import SleeperResponse, WheelLoads
+from driver import SENSOR_QOS, track_node
 from streams import encoded, frames, offline
 from visualization_msgs.msg import Marker, MarkerArray
 
 from clm_core.io.messages import decode_sleeper_response
 from clm_core.io.timebase import NS
 
-NODE = "import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n"
-
 
 def test_best_effort_publisher_gets_answers(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.1"], name="track_node")
-    drv = Driver(ros_domain_id, wheel_qos=SENSOR_QOS)  # appears after the node subscribed (reliable then)
-    try:
+    with track_node(ros_python, ros_domain_id, wheel_qos=None) as run:
+        drv = run.drv
+        # a sensor-data publisher appears after the node subscribed (reliably then: nobody else was there)
+        drv.pub = drv.node.create_publisher(WheelLoads, "/wheel_loads", SENSOR_QOS)
         drv.wait_discovery()
         stream = frames(300, 5 * NS)
         drv.send(encoded(stream), expected_answers=300, max_in_flight=5, timeout=60)
@@ -46,20 +45,13 @@ def test_best_effort_publisher_gets_answers(ros_python, ros_domain_id) -> None: 
         got = {s.stamp_ns: s for s in drv.sleepers}
         for t, r in zip([t for t, _, _ in stream], ref):
             np.testing.assert_array_equal(got[t].soil_force, r.soil_force)
-    finally:
-        drv.close()
-    proc.terminate()
-    _, err = ros_python.wait(proc, 20)
-    assert proc.returncode == 0
-    assert "reliability reliable -> best_effort" in err, err
+    assert "reliability reliable -> best_effort" in run.err, run.err
 
 
 def test_qos_override_forces_reliable(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.1", "-p",
-                                   "qos_overrides./wheel_loads.subscription.reliability:=reliable"],
-                            name="track_node")
-    drv = Driver(ros_domain_id, wheel_qos=SENSOR_QOS)
-    try:
+    with track_node(ros_python, ros_domain_id, "qos_overrides./wheel_loads.subscription.reliability:=reliable",
+                    discover=False, wheel_qos=SENSOR_QOS) as run:
+        drv = run.drv
         drv.wait_for(lambda: drv.node.count_subscribers("/wheel_loads") >= 1, 60, "the node subscribed")
         for m in encoded(frames(50, 5 * NS)):
             drv.pub.publish(m)  # type: ignore[union-attr]
@@ -68,27 +60,19 @@ def test_qos_override_forces_reliable(ros_python, ros_domain_id) -> None:  # typ
         assert d["wheel_loads_reliability"] == "reliable" and d["received"] == "0", d
         assert drv.pub.get_subscription_count() == 0  # type: ignore[union-attr]  # incompatible: not matched
         assert drv.sleepers == []
-    finally:
-        drv.close()
-    proc.terminate()
-    _, err = ros_python.wait(proc, 20)
-    assert proc.returncode == 0
-    assert "incompatible QoS" in err, err
+    assert "incompatible QoS" in run.err, run.err
 
 
 def test_monitored_series_keep_their_sleeper_and_markers(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
     # sleepers 25 (left behind by the window), 60 (always inside) and 100 (reached by the window) by index, and
     # the one nearest 40.0 m (index 67 at 0.6 m spacing)
-    proc = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.1", "-p",
-                                   "monitored_sleepers:=[25, 60, 100]", "-p", "monitored_positions:=40.0", "-p",
-                                   "markers_period:=0.05"], name="track_node")
-    drv = Driver(ros_domain_id)
-    series = drv.subscribe(SleeperResponse, "/monitored_sleepers", raw=True)
-    markers: list[MarkerArray] = []
-    marker_sub = drv.node.create_subscription(MarkerArray, "/track_markers", markers.append, 10)
     stream = frames(800, 5 * NS)  # 24 m at 30 m/s: the window moves over the monitored sleepers
-    try:
-        drv.wait_discovery()
+    with track_node(ros_python, ros_domain_id, "monitored_sleepers:=[25, 60, 100]", "monitored_positions:=40.0",
+                    "markers_period:=0.05") as run:
+        drv = run.drv
+        series = drv.subscribe(SleeperResponse, "/monitored_sleepers", raw=True)
+        markers: list[MarkerArray] = []
+        marker_sub = drv.node.create_subscription(MarkerArray, "/track_markers", markers.append, 10)
         drv.wait_for(lambda: drv.node.count_publishers("/monitored_sleepers") >= 1, 20, "the series")
         drv.wait_for(lambda: marker_sub.get_publisher_count() >= 1, 20, "the markers")
         t_end = time.monotonic() + 1.0  # the node notices its watcher (every 0.25 s)
@@ -96,10 +80,6 @@ def test_monitored_series_keep_their_sleeper_and_markers(ros_python, ros_domain_
             drv.spin(0.05)
         drv.send(encoded(stream), expected_answers=800)
         drv.wait_for(lambda: len(series) >= 800 and markers, 30, "every series message and markers")
-    finally:
-        drv.close()
-    proc.terminate()
-    assert ros_python.wait(proc, 20) and proc.returncode == 0
     got = [decode_sleeper_response(b) for b in series]
     assert [g.stamp_ns for g in got] == [t for t, _, _ in stream]
     inside = np.zeros(4, dtype=int)

@@ -351,27 +351,21 @@ class TrackNode(LifecycleNode):
 
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
         """Drop the model and the publishers."""
-        self._release()
-        self._state = "unconfigured"
-        return TransitionCallbackReturn.SUCCESS
+        return self._release()
 
     def on_shutdown(self, state: State) -> TransitionCallbackReturn:
         """From any primary state: unsubscribe, drop everything; the node never answers again."""
-        self._unsubscribe()
-        self._release()
-        self._state = "finalized"
-        self._log("info", "finalized: no wheel loads are taken any more")
-        return TransitionCallbackReturn.SUCCESS
+        return self._release("finalized", "finalized: no wheel loads are taken any more")
 
     def on_error(self, state: State) -> TransitionCallbackReturn:
         """A transition raised: release everything and go back to unconfigured."""
-        self._unsubscribe()
-        self._release()
-        self._state = "unconfigured"
-        self._log("error", "a transition failed; the node is unconfigured")
-        return TransitionCallbackReturn.SUCCESS
+        return self._release("unconfigured", "a transition failed; the node is unconfigured")
 
-    def _release(self) -> None:
+    def _release(self, state: str = "", why: str = "") -> TransitionCallbackReturn:
+        """Unsubscribe (counting what is queued), drop the model and the publishers; now in ``state``."""
+        self._unsubscribe()
+        if why:
+            self._log("info" if state == "finalized" else "error", why)
         for name in ("_pub_s", "_pub_w", "_pub_mon", "_pub_markers"):
             pub = getattr(self, name)
             if pub is not None:
@@ -379,6 +373,8 @@ class TrackNode(LifecycleNode):
                 setattr(self, name, None)
         self.model = None
         self._last_response = None
+        self._state = state or "unconfigured"
+        return TransitionCallbackReturn.SUCCESS
 
     # ------------------------------------------------------------------ subscription (QoS, peers)
 
