@@ -190,10 +190,14 @@ def track_node(params: dict[str, Any], log_dir: Path, name: str) -> Iterator[tup
 
 
 def lag_figures(stamps: list[int], recv: list[int]) -> dict[str, float]:
-    lag = (np.asarray(recv, dtype=np.int64) - np.asarray(stamps, dtype=np.int64)) / 1e9
+    """Lag (receive time - stamp) over all answers and over the first second of traffic [s]."""
+    st = np.asarray(stamps, dtype=np.int64)
+    lag = (np.asarray(recv, dtype=np.int64) - st) / 1e9
+    first = lag[st - st[0] < NS] if st.size else lag
     return {"answers": float(lag.size), "lag_median_s": pct(lag, 50), "lag_p99_s": pct(lag, 99),
             "lag_max_s": float(lag.max()) if lag.size else float("nan"), "over_5ms": float((lag > 5e-3).sum()),
-            "over_20ms": float((lag > 20e-3).sum())}
+            "over_20ms": float((lag > 20e-3).sum()), "first_second_median_s": pct(first, 50),
+            "first_second_max_s": float(first.max()) if first.size else float("nan")}
 
 
 def side_by_side(sleepers: int, rate: float, frames: int = 1500) -> dict[str, float]:
@@ -254,12 +258,14 @@ def case_track(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         def sample() -> None:
             samples.append((time.monotonic(), proc_cpu_s(proc.pid), *machine_cpu(), float(len(lis.stamps))))
 
+        sent_at = np.zeros(n, dtype=np.int64)  # when each message actually went out [ns]
         k = 0
         while k < n:
             due = (t0 + k * period - time.time_ns()) / NS
             if due > 0:
                 lis.ex.spin_once(timeout_sec=due)
                 continue
+            sent_at[k] = time.time_ns()
             lis.pub.publish(raws[k])
             k += 1
             if k == n // 10:  # the steady part: from 10 % of the run to the last answer
@@ -271,6 +277,13 @@ def case_track(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         rtf = [float(d["real_time_factor"]) for d in lis.diags if d.get("real_time_factor", "nan") != "nan"]
         out = steady_cpu(samples, proc.pid)
         out.update(lag_figures(lis.stamps, lis.recv))
+        # the same without this process's own lateness: from the moment each message was published
+        index = {int(f.stamp_ns): i for i, f in enumerate(frames)}
+        late = sent_at - np.array([f.stamp_ns for f in frames])
+        from_pub = np.array([r - sent_at[index[st]] for st, r in zip(lis.stamps, lis.recv) if st in index]) / 1e9
+        out.update({"from_publish_median_s": pct(from_pub, 50), "from_publish_p99_s": pct(from_pub, 99),
+                    "from_publish_max_s": float(from_pub.max()) if from_pub.size else float("nan"),
+                    "publisher_late_p99_s": pct(late / 1e9, 99), "publisher_late_max_s": float(late.max()) / 1e9})
         dp = [float(d["data_path_cpu_us_per_message"]) for d in lis.diags
               if d.get("data_path_cpu_us_per_message", "nan") != "nan"]
         out.update({"sent": float(n), "rtf_min": min(rtf, default=float("nan")),
@@ -370,7 +383,12 @@ def report(case: str, runs: list[dict[str, Any]], a: argparse.Namespace) -> None
     for i, r in enumerate(runs):
         node = r.get("track_cpu_us_per_message", float("nan"))
         line = (f"  run {i + 1}: lag median {ms(r['lag_median_s'])} p99 {ms(r['lag_p99_s'])} max {ms(r['lag_max_s'])}"
-                f" (>5 ms: {int(r['over_5ms'])}, >20 ms: {int(r['over_20ms'])}) of {int(r['answers'])} answers\n"
+                f" (>5 ms: {int(r['over_5ms'])}, >20 ms: {int(r['over_20ms'])}) of {int(r['answers'])} answers; "
+                f"first second: median {ms(r['first_second_median_s'])}, max {ms(r['first_second_max_s'])}\n"
+                + (f"         from the actual publication: median {ms(r['from_publish_median_s'])} p99 "
+                   f"{ms(r['from_publish_p99_s'])} max {ms(r['from_publish_max_s'])} (this publisher late by up to "
+                   f"{ms(r['publisher_late_max_s'])}, p99 {ms(r['publisher_late_p99_s'])})\n"
+                   if "from_publish_median_s" in r else "") +
                 f"         track node {node:6.0f} us CPU/message = {node / r['kernel_cadence_us']:.2f} x the compiled "
                 f"kernel at the same cadence ({r['kernel_cadence_us']:.0f} us for {int(r['steps'])} steps; "
                 f"model alone {r['model_cadence_us']:.0f} us)\n"

@@ -89,7 +89,7 @@ from clm_ros.diagnostics import (
     lag_level,
     lag_values,
 )
-from clm_ros.lifetime import StopSignals, spin_until_stopped
+from clm_ros.lifetime import StopSignals, publish_synchronously, spin_until_stopped
 from clm_ros.parameters import declare_model_parameters, declare_settings
 from clm_ros.track_views import MonitoredSleepers, monitored_indices, window_markers
 
@@ -657,6 +657,7 @@ def main(args: list[str] | None = None) -> int:
     node: TrackNode | None = None
     executor: Any = None
     try:
+        publish_synchronously()
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         node = TrackNode(stop=stop)
         if node.model is None and node.get_parameter("autostart").value:
