@@ -220,8 +220,13 @@ def track_node(ros_python: Any, domain_id: int, *params: str, discover: bool = T
         if discover:
             run.drv.wait_discovery()
         yield run
-    finally:
+    except BaseException:
         run.drv.close()
+        proc.terminate()
+        _, err = ros_python.wait(proc, 20)
+        print(f"--- track node log (exit {proc.returncode})\n{err}")  # shown by pytest with the failure
+        raise
+    run.drv.close()
     proc.terminate()
     _, run.err = ros_python.wait(proc, 20)
     assert proc.returncode == 0, run.err
