@@ -6,11 +6,13 @@ process, side by side:
 
 - **kernel**: the bare compiled steps, :func:`clm_core.solver._kernels.run_steps`
   for the steps of one frame (10 at 1 kHz, 5 at 2 kHz) with the sleeper
-  fields recorded at the last step, loads precomputed (no Python per step):
-  what one frame costs at the least;
+  fields recorded at the last step, loads precomputed (no Python per step),
+  window fixed: what one frame costs at the least;
 - **process**: :meth:`clm_core.online.OnlineTrackModel.process` of one frame
   (validation, stamp policy, interpolation, Hermite weights, steps, window
-  shifts, the response record), per frame over a stream;
+  shifts, the response record), per frame over a stream; measured in blocks
+  of 100 calls alternating with blocks of the kernel, so that both see the
+  same load;
 - **batch**: :meth:`~clm_core.online.OnlineTrackModel.process_batch` of a
   backlog of 5000 frames in one call, and its real-time factor (simulated
   time / time taken).
@@ -60,41 +62,52 @@ def cpu_wall(fn: Any) -> tuple[float, float]:
     return time.process_time() - c0, time.perf_counter() - w0
 
 
-def kernel_per_call(params: Any, n_sleepers: int, steps: int, calls: int) -> tuple[float, float]:
-    """CPU and wall time [s] of one run_steps call of ``steps`` steps (4 wheels, output at the last step)."""
-    model = OnlineTrackModel(params, DT, n_sleepers)
-    sim = model.sim
-    sim.initialize(40.0 - OFFSETS, np.full(4, 85e3))
-    s = sim._s
-    # wheels sway by +-1 mm around their place (no shift): the same work per step as a moving load
-    P = (40.0 - OFFSETS)[None, :] + 1e-3 * np.sin(np.arange(steps))[:, None]
-    F = np.full((steps, 4), 85e3)
-    ld, lw = load_weights(sim._layout, s.placement.first, P)
-    N = sim.n_sleepers
-    out = kern.StepOutputs(np.empty((steps, 4)), np.empty((steps, 4)), np.array([steps - 1], dtype=np.int64),
-                           np.empty((1, N)), np.empty((1, N)), np.empty((1, N)), np.empty((1, N)))
-    args = kern.StepArgs(s.op.kernel, sim._step_state(), kern.StepLoads(ld, lw, F), out)
-    kern.run_steps(args)
+class KernelCall:
+    """The bare compiled steps of one frame: run_steps for ``steps`` steps, 4 wheels, output at the last step."""
 
-    def loop() -> None:
+    def __init__(self, params: Any, n_sleepers: int, steps: int) -> None:
+        model = OnlineTrackModel(params, DT, n_sleepers)
+        sim = model.sim
+        sim.initialize(40.0 - OFFSETS, np.full(4, 85e3))
+        s = sim._s
+        # wheels sway by +-1 mm around their place (no shift): the same work per step as moving loads
+        P = (40.0 - OFFSETS)[None, :] + 1e-3 * np.sin(np.arange(steps))[:, None]
+        F = np.full((steps, 4), 85e3)
+        ld, lw = load_weights(sim._layout, s.placement.first, P)
+        N = sim.n_sleepers
+        out = kern.StepOutputs(np.empty((steps, 4)), np.empty((steps, 4)), np.array([steps - 1], dtype=np.int64),
+                               np.empty((1, N)), np.empty((1, N)), np.empty((1, N)), np.empty((1, N)))
+        self.args = kern.StepArgs(s.op.kernel, sim._step_state(), kern.StepLoads(ld, lw, F), out)
+        kern.run_steps(self.args)
+
+    def __call__(self, calls: int) -> None:
         for _ in range(calls):
-            kern.run_steps(args)
-
-    c, w = cpu_wall(loop)
-    return c / calls, w / calls
+            kern.run_steps(self.args)
 
 
-def process_per_frame(params: Any, n_sleepers: int, frames: list[WheelFrame]) -> tuple[float, float]:
+def side_by_side(params: Any, n_sleepers: int, steps: int, frames: list[WheelFrame], block: int = 100
+                 ) -> tuple[float, float, float, float]:
+    """CPU and wall time [s] per call of the bare kernel and per frame of ``process``, measured in alternating
+    blocks of ``block`` calls (the same load on both)."""
+    kernel = KernelCall(params, n_sleepers, steps)
     model = OnlineTrackModel(params, DT, n_sleepers)
     model.process(frames[0])
+    kc = kw = pc = pw = 0.0
+    n = 0
+    for a in range(1, len(frames) - block + 1, block):
+        c, w = cpu_wall(lambda: kernel(block))
+        kc, kw = kc + c, kw + w
+        chunk = frames[a:a + block]
 
-    def loop() -> None:
-        for f in frames[1:]:
-            model.process(f)
+        def run(chunk: list[WheelFrame] = chunk) -> None:
+            for f in chunk:
+                model.process(f)
 
-    c, w = cpu_wall(loop)
-    assert model.stats.accepted == len(frames), model.stats
-    return c / (len(frames) - 1), w / (len(frames) - 1)
+        c, w = cpu_wall(run)
+        pc, pw = pc + c, pw + w
+        n += block
+    assert model.stats.accepted == n + 1, model.stats
+    return kc / n, kw / n, pc / n, pw / n
 
 
 def batch(params: Any, n_sleepers: int, frames: list[WheelFrame]) -> tuple[float, float, float]:
@@ -123,12 +136,11 @@ def main() -> int:
         kc, kw, pc, pw, bc, bw = [], [], [], [], [], []
         sim_s = 0.0
         for _ in range(a.runs):
-            c, w = kernel_per_call(params, N, steps, max(200, a.frames // 2))
-            kc.append(c)
-            kw.append(w)
-            c, w = process_per_frame(params, N, frames)
-            pc.append(c)
-            pw.append(w)
+            c1, w1, c2, w2 = side_by_side(params, N, steps, frames)
+            kc.append(c1)
+            kw.append(w1)
+            pc.append(c2)
+            pw.append(w2)
             c, w, sim_s = batch(params, N, backlog)
             bc.append(c)
             bw.append(w)

@@ -421,18 +421,49 @@ def load_model(
     return mp
 
 
-def load_params_file(path: str | Path) -> ModelParams:
-    """Load a full parameter file (rail, track, soil, overrides)."""
+def model_from_settings(
+    track: str | Path = "mevergnies",
+    soil: str | Path | None = "mevergnies",
+    model: SoilModel = "clm",
+    params_file: str | Path | None = None,
+    overrides: Mapping[str, float] | None = None,
+) -> ModelParams:
+    """The model that the run settings ``track``, ``soil``, ``model`` and ``params_file`` describe.
+
+    A full parameter file (``params_file``) replaces the three presets;
+    ``overrides`` (``{name: value}``, :meth:`ModelParams.override`) apply on
+    top of either. The one rule of ``clm simulate``, ``clm receptance`` and
+    ``clm study``.
+    """
+    if params_file:
+        mp = load_params_file(params_file)
+        return mp.override(**overrides) if overrides else mp
+    return load_model(track, soil, model, overrides)
+
+
+def read_yaml_mapping(path: str | Path, what: str = "parameter file") -> dict[str, Any]:
+    """The top-level mapping of the YAML file ``path``.
+
+    Raises
+    ------
+    PresetError
+        ``"<what> '<path>' not found"``, not valid YAML, or not a mapping at the top level.
+    """
     p = Path(path)
     if not p.is_file():
-        raise PresetError(f"parameter file {str(p)!r} not found")
+        raise PresetError(f"{what} {str(p)!r} not found")
     try:
         data = yaml.safe_load(p.read_text())
     except yaml.YAMLError as exc:
         raise PresetError(f"{p}: not valid YAML ({exc})") from None
     if not isinstance(data, dict):
         raise PresetError(f"{p}: expected a mapping at the top level")
-    return ModelParams.from_dict(data)
+    return cast(dict[str, Any], data)
+
+
+def load_params_file(path: str | Path) -> ModelParams:
+    """Load a full parameter file (rail, track, soil, overrides)."""
+    return ModelParams.from_dict(read_yaml_mapping(path))
 
 
 def save_params_file(params: ModelParams, path: str | Path) -> None:

@@ -276,10 +276,17 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: F401
 from rosgraph_msgs.msg import Clock  # noqa: F401
 from clm_msgs.msg import SleeperResponse, WheelLoad, WheelLoads, WheelRailResponse  # noqa: F401
 from clm_msgs.srv import Calibrate  # noqa: F401
+from clm_msgs.action import Calibrate as CalibrateAction
+from rclpy.action import ActionClient, ActionServer  # noqa: F401  (rcl_action + action_msgs)
 m = WheelLoads(wheels=[WheelLoad(id=7, position=1.5, force=1.0e5, speed=float("nan"))])
 m.header.frame_id = "line"
 back = deserialize_message(serialize_message(m), WheelLoads)
 assert back.wheels[0].id == 7 and back.wheels[0].force == 1.0e5, back
+goal = CalibrateAction.Goal(bag_path="b", fit=["kp", "kb"])
+assert deserialize_message(serialize_message(goal), CalibrateAction.Goal).fit == ["kp", "kb"]
+fb = CalibrateAction.Impl.FeedbackMessage()
+fb.feedback.fraction = 0.5
+assert deserialize_message(serialize_message(fb), CalibrateAction.Impl.FeedbackMessage).feedback.fraction == 0.5
 EOF
     )
 }

@@ -8,9 +8,6 @@ clear line (no traceback) and no output bag.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,19 +17,10 @@ from clm_core.io import messages as msgs
 from clm_core.io.bags import BagReader, BagWriter
 from clm_core.online import OnlineTrackModel
 from clm_core.params import load_model
+from tests.io.test_damaged_bags import _clm
 from tests.onlinetools import MS, WALL, answers, stream
 
 pytest.importorskip("clm_ros.replay", reason="clm replay needs clm_ros")
-
-CLM_ROS_SRC = Path(__file__).resolve().parents[1] / "ros2_ws" / "src" / "clm_ros"
-
-
-def _clm(*args: str) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ)  # `clm replay` lives in clm_ros: importable from the source tree too
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(CLM_ROS_SRC), env.get("PYTHONPATH", "")) if p)
-    return subprocess.run([sys.executable, "-m", "clm_core.cli", *args], capture_output=True, text=True, timeout=600,
-                          env=env)
-
 
 def _bag(path: Path, frames: list[tuple[int, list[int], list[float], list[float]]], junk: tuple[int, ...] = ()) -> Path:
     with BagWriter(path) as w:

@@ -52,13 +52,9 @@ def add_window_arguments(p: argparse.ArgumentParser, automatic_sleepers: str = "
 
 def model_from_args(args: argparse.Namespace) -> ModelParams:
     """Build the validated parameter set the arguments describe."""
-    from clm_core.params import load_model, load_params_file, parse_assignments
+    from clm_core.params import model_from_settings, parse_assignments
 
-    sets = parse_assignments(args.set)
-    if args.params_file:
-        mp = load_params_file(args.params_file)
-        return mp.override(**sets) if sets else mp
-    return load_model(args.track, args.soil, args.model, sets)
+    return model_from_settings(args.track, args.soil, args.model, args.params_file, parse_assignments(args.set))
 
 
 def check_output(path: str | Path, overwrite: bool, option: str = "--out") -> Path:

@@ -4,10 +4,18 @@
         [--channels MAP.yaml] [--fmin HZ] [--fmax HZ] [--norm NORM]
         [--model clm|lysmer|winkler] [--fit kp,dp,kb,db] [--soil fixed|joint]
         [--params FILE] [--options OPTIONS.yaml] [--no-plots] [--no-progress]
+    clm calibrate FOLDER --method ... --out DIR [--scheduler ADDRESS] [--workers N] [--retry-failed]
 
 Writes params.yaml, soil.yaml / track.yaml, summary.json, report.md and PNG
 plots into DIR (:func:`clm_core.calibration.report.write_outputs`). A
 progress bar is shown on a terminal only (:class:`clm_core.progress.Progress`).
+
+Given a folder of bags (bag directories or ``.mcap``/``.db3`` files), every
+bag is calibrated the same way on the study engine (a local dask cluster, or
+``--scheduler``; :func:`clm_core.studies.calibrate_folder`): each bag's
+outputs in ``DIR/bags/<bag>/``, one row per bag in
+``DIR/calibrations.parquet`` and ``DIR/calibrations.csv`` (values, 95 %
+intervals, misfit, ``status``, ``error``); resumable like ``clm study``.
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ from clm_core.calibration.options import METHODS, CalibrationOptions
 from clm_core.calibration.residuals import NORMS
 from clm_core.commands._common import check_output, output_dir, quantity
 from clm_core.commands._options import add_overwrite
+from clm_core.commands.study import add_engine_arguments
 from clm_core.errors import InputError
 
 
@@ -33,7 +42,8 @@ def register(sub: Any) -> None:
         "The channel map (topic -> place, quantity, unit) is --channels or channels.yaml in the bag directory; "
         "format in docs/calibration.md.",
     )
-    p.add_argument("bag", help="rosbag2 bag directory or .mcap file")
+    p.add_argument("bag", help="rosbag2 bag directory or .mcap file, or a folder of bags (one row per bag, on the "
+                   "study engine)")
     p.add_argument("--method", required=True, choices=METHODS, help="test type")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--channels", default=None, help="channel map YAML (default: channels.yaml in the bag directory)")
@@ -55,6 +65,8 @@ def register(sub: Any) -> None:
     p.add_argument("--allow-partial", action="store_true",
                    help="fit what is left of a damaged bag (missing or damaged chunks are reported as warnings) "
                    "instead of refusing it")
+    g = p.add_argument_group("a folder of bags (dask.distributed, as clm study)")
+    add_engine_arguments(g, "bags")
     p.set_defaults(func=run)
 
 
@@ -90,7 +102,12 @@ def run(args: argparse.Namespace) -> int:
         }
     )
     from clm_core.progress import Progress
+    from clm_core.studies.study import is_bag_folder
 
+    if is_bag_folder(args.bag):
+        return _run_folder(args, opts)
+    if args.scheduler or args.workers or args.retry_failed:
+        raise InputError(f"--scheduler, --workers, --retry-failed: for a folder of bags; {args.bag} is one bag")
     check_output(args.out, args.overwrite)
     with Progress(100, "clm calibrate", unit="%", enabled=False if args.no_progress else None) as bar:
         result = calibrate(args.bag, args.method, opts, progress=bar.fraction,
@@ -105,4 +122,19 @@ def run(args: argparse.Namespace) -> int:
     for w in result.warnings:
         print(f"  warning: {w}")
     print(f"  -> {files[0].parent}")
+    return 0
+
+
+def _run_folder(args: argparse.Namespace, opts: CalibrationOptions) -> int:
+    """``clm calibrate FOLDER``: every bag on the study engine, one row each."""
+    import sys
+
+    from clm_core.commands.study import report
+    from clm_core.studies import calibrate_folder
+
+    outcome = calibrate_folder(args.bag, args.method, opts.to_dict(), args.out, scheduler=args.scheduler,
+                               workers=args.workers, overwrite=args.overwrite, retry_failed=args.retry_failed,
+                               plots=not args.no_plots, allow_partial=args.allow_partial,
+                               log=lambda m: print(m, file=sys.stderr))
+    report(outcome, f"calibrate {args.bag} ({args.method})", unit="bags")
     return 0

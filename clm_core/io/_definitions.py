@@ -1,8 +1,8 @@
 """The ``clm_msgs`` definitions: where they are, the rosbags type store, and the text rosbag2 embeds.
 
 Implementation of part 1 of :mod:`clm_core.io.messages` (which re-exports the
-public names; import them from there). The ``.msg``/``.srv`` files of
-``clm_msgs`` are the one source of truth: ``<prefix>/share/clm_msgs`` for each
+public names; import them from there). The ``.msg``/``.srv``/``.action``
+files of ``clm_msgs`` are the one source of truth: ``<prefix>/share/clm_msgs`` for each
 prefix of ``AMENT_PREFIX_PATH`` and ``sys.prefix`` (what rosidl generated
 rclpy's classes from), then the source tree ``ros2_ws/src/clm_msgs``, then the
 copy packaged with clm_core (``clm_core/io/interfaces/clm_msgs``, identical by
@@ -128,21 +128,56 @@ def _rename_refs(types: Typesdict, mapping: dict[str, str]) -> Typesdict:
     }
 
 
-def _service_types(path: Path, known: Typesdict) -> Typesdict:
-    """A .srv file as its _Request, _Response and _Event types (parsed as messages, moved to ``srv/``)."""
-    parts = _SEPARATOR.split(_read(path))
-    if len(parts) != 2:
-        raise MessageError(f'{path}: expected one "---" line between request and response')
-    texts = {"Request": parts[0], "Response": parts[1], "Event": _SERVICE_EVENT.format(name=path.stem)}
+def _split(path: Path, parts: int) -> list[str]:
+    texts = _SEPARATOR.split(_read(path))
+    if len(texts) != parts:
+        raise MessageError(f'{path}: expected {parts - 1} "---" line(s), found {len(texts) - 1}')
+    return texts
+
+
+def _interface_types(path: Path, kind: str, texts: dict[str, str], known: Typesdict) -> Typesdict:
+    """Parts ``<Name>_<suffix>`` of a service or action, parsed as messages and moved to ``<kind>/``."""
     parsed: Typesdict = {}
     mapping: dict[str, str] = {}
     for suffix, text in texts.items():
         as_msg = f"{PACKAGE}/msg/{path.stem}_{suffix}"
         if as_msg in known:
-            raise MessageError(f"{path}: message {as_msg} clashes with the service part of the same name")
+            raise MessageError(f"{path}: message {as_msg} clashes with the {kind} part of the same name")
         parsed.update(_parse(text, as_msg, path))
-        mapping[as_msg] = f"{PACKAGE}/srv/{path.stem}_{suffix}"
+        mapping[as_msg] = f"{PACKAGE}/{kind}/{path.stem}_{suffix}"
     return _rename_refs(parsed, mapping)
+
+
+def _service_types(path: Path, known: Typesdict) -> Typesdict:
+    """A .srv file as its _Request, _Response and _Event types."""
+    request, response = _split(path, 2)
+    texts = {"Request": request, "Response": response, "Event": _SERVICE_EVENT.format(name=path.stem)}
+    return _interface_types(path, "srv", texts, known)
+
+
+def _action_types(path: Path, known: Typesdict) -> Typesdict:
+    """An .action file as the types rosidl generates for it (``clm_msgs/action/<Name>_...``).
+
+    ``_Goal``, ``_Result``, ``_Feedback``, the ``_FeedbackMessage`` of the
+    feedback topic, and the ``_SendGoal`` / ``_GetResult`` services
+    (``_Request``, ``_Response``, ``_Event``), with the fields rosidl_generator
+    adds (``unique_identifier_msgs/UUID goal_id``, ...).
+    """
+    goal, result, feedback = _split(path, 3)
+    name = path.stem
+    texts = {
+        "Goal": goal,
+        "Result": result,
+        "Feedback": feedback,
+        "FeedbackMessage": f"unique_identifier_msgs/UUID goal_id\n{name}_Feedback feedback\n",
+        "SendGoal_Request": f"unique_identifier_msgs/UUID goal_id\n{name}_Goal goal\n",
+        "SendGoal_Response": "bool accepted\nbuiltin_interfaces/Time stamp\n",
+        "SendGoal_Event": _SERVICE_EVENT.format(name=f"{name}_SendGoal"),
+        "GetResult_Request": "unique_identifier_msgs/UUID goal_id\n",
+        "GetResult_Response": f"int8 status\n{name}_Result result\n",
+        "GetResult_Event": _SERVICE_EVENT.format(name=f"{name}_GetResult"),
+    }
+    return _interface_types(path, "action", texts, known)
 
 
 @functools.lru_cache(maxsize=8)
@@ -155,22 +190,27 @@ def _clm_types_cached(root: Path) -> Typesdict:
         types.update(_parse(_read(path), f"{PACKAGE}/msg/{path.stem}", path))
     for path in sorted((root / "srv").glob("*.srv")):
         types.update(_service_types(path, types))
+    for path in sorted((root / "action").glob("*.action")):
+        types.update(_action_types(path, types))
     return types
 
 
 def clm_types(directory: str | os.PathLike[str] | None = None) -> Typesdict:
-    """Parse every ``clm_msgs`` message and service definition.
+    """Parse every ``clm_msgs`` message, service and action definition.
 
     Parameters
     ----------
     directory : path-like, optional
-        Package directory with ``msg/`` and ``srv/``; default :func:`interface_dir`.
+        Package directory with ``msg/``, ``srv/`` and ``action/``; default
+        :func:`interface_dir`.
 
     Returns
     -------
     dict
         rosbags type dictionary (``'clm_msgs/msg/WheelLoads'``,
-        ``'clm_msgs/srv/Calibrate_Request'``, ...), for ``Typestore.register``.
+        ``'clm_msgs/srv/Calibrate_Request'``,
+        ``'clm_msgs/action/Calibrate_FeedbackMessage'``, ...), for
+        ``Typestore.register``.
 
     Raises
     ------

@@ -62,6 +62,7 @@ __all__ = [
     "ReadReport",
     "TopicInfo",
     "default_qos",
+    "is_bag",
     "storage_of",
     "write_history_bag",
 ]
@@ -307,6 +308,15 @@ class ReadReport:
         """One paragraph for a log or an error message."""
         parts = [f"{t}: read {r} of {n}" for t, (r, n) in sorted(self.mismatches().items())]
         return "; ".join(parts + self.damaged) or "complete"
+
+
+def is_bag(path: str | os.PathLike[str]) -> bool:
+    """True if ``path`` is a bag under the one rule of the module docstring (what :class:`BagReader` opens)."""
+    try:
+        _bag_target(Path(path))
+    except BagError:
+        return False
+    return True
 
 
 def _bag_target(p: Path) -> tuple[Path, str, bool]:

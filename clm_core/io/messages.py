@@ -4,7 +4,7 @@ Three parts, no rclpy anywhere (the rclpy flavour, ``clm_ros.conversions``,
 is built on this module):
 
 1. **Definitions and type store** (implemented in :mod:`clm_core.io._definitions`,
-   re-exported here). The ``.msg``/``.srv`` files of the
+   re-exported here). The ``.msg``/``.srv``/``.action`` files of the
    ``clm_msgs`` package are the one source of truth. They are found, in this
    order, in ``<prefix>/share/clm_msgs`` for each prefix of
    ``AMENT_PREFIX_PATH`` and ``sys.prefix`` (what rosidl generated rclpy's
@@ -12,10 +12,13 @@ is built on this module):
    packaged with clm_core (``clm_core/io/interfaces/clm_msgs``, identical by
    test). :func:`typestore` is rosbags' Jazzy store plus every clm_msgs type
    (services as ``clm_msgs/srv/<Name>_Request``, ``_Response`` and
-   ``_Event``); :func:`message_definition` gives the text rosbag2 embeds in a
-   bag for a type: the ``.msg`` files *with their comments* (units, sign
-   convention), dependencies appended as rosbag2 Jazzy's
-   ``LocalMessageDefinitionSource`` does.
+   ``_Event``; actions as ``clm_msgs/action/<Name>_Goal``, ``_Result``,
+   ``_Feedback``, ``_FeedbackMessage`` and the ``_SendGoal_*`` /
+   ``_GetResult_*`` service parts, as rosidl generates them);
+   :func:`message_definition` gives the text rosbag2 embeds in a bag for a
+   type: the ``.msg`` files *with their comments* (units, sign convention),
+   dependencies appended as rosbag2 Jazzy's ``LocalMessageDefinitionSource``
+   does.
 2. **Domain data.** :func:`frame_from_msg`, :func:`frame_from_cdr`
    (``WheelLoads``, as a message or as CDR bytes -> the online model's
    frame), :func:`sleeper_fields` / :func:`wheel_fields` (a response ->

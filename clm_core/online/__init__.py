@@ -11,6 +11,19 @@ node, ``clm replay`` and the tests all call them, so "the node's output
 equals the offline computation" holds by construction, however the messages
 were batched.
 
+Use (what the node and ``clm replay`` do with the messages waiting)::
+
+    frames = []
+    for raw in waiting:                               # serialized clm_msgs/WheelLoads
+        try:
+            frames.append(frame_from_cdr(raw))        # clm_core.io.messages: numpy CDR codec
+        except MessageError as exc:                   # undecodable, header nanosec >= 1e9
+            model.reject(Reason.MALFORMED, str(exc))  # counted with the other refusals
+    for answer in model.process_batch(frames):        # one compiled call through all of them
+        ...                                           # a ResponseFrame (publish it) or a Rejected
+
+    model = OnlineTrackModel(params, ..., stats=model.stats)   # a rebuilt model carries the counters on
+
 Time
 ----
 Integer nanoseconds end to end: a frame's stamp is ``stamp_ns``; the model

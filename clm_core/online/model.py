@@ -33,18 +33,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from clm_core.errors import InputError, ParameterError
 from clm_core.io.timebase import NS
-from clm_core.online.policy import (
-    RESPONSE_KEY,
-    RULES,
-    STAMP_MAX,
-    STAMP_MIN,
-    InputPolicy,
-    Timeline,
-    TimelineState,
-    brief,
-    check_frame,
-    clip,
-)
+from clm_core.online import policy as rules
+from clm_core.online.policy import InputPolicy, Timeline, TimelineState, check_frame, clip
 from clm_core.online.records import OnlineStats, Reason, Rejected, ResponseFrame, WheelFrame
 from clm_core.params import ModelParams
 from clm_core.solver import FrameLoads, FrameResponses, TrackSimulator
@@ -178,6 +168,8 @@ class OnlineTrackModel:
         self._max_spread = (self.n_sleepers - 2 - self.sim.lead_sleepers - self.sim.margin_sleepers) * spacing
         self._limits = self.policy.limits(self._max_spread)
         self._no_speeds = np.zeros(0)
+        ints = self._ints1 = np.zeros(7, dtype=np.int64)  # ticks, k_end, offsets, soffsets of a single frame
+        self._ints1_views = (ints[0:2], ints[2:3], ints[3:5], ints[5:7])
         self._warm_up()
 
     # ------------------------------------------------------------------ state
@@ -274,7 +266,7 @@ class OnlineTrackModel:
             except (TypeError, ValueError, OverflowError, AttributeError) as exc:
                 out[g] = Rejected(Reason.MALFORMED, clip(f"frame of {type(fr).__name__}: {exc}"))
                 continue
-            if not STAMP_MIN <= stamp <= STAMP_MAX:
+            if not rules.STAMP_MIN <= stamp <= rules.STAMP_MAX:
                 out[g] = Rejected(Reason.MALFORMED, f"stamp {stamp} ns is outside builtin_interfaces/Time (int32 s)")
             elif pos.size != ids.size or F.size != ids.size or sp.size not in (0, ids.size):
                 out[g] = Rejected(Reason.SIZE_MISMATCH, f"array lengths differ (ids {ids.size}, positions {pos.size},"
@@ -325,11 +317,11 @@ class OnlineTrackModel:
         if new:
             known = self._fixed_set or self.timeline.last is not None
             if known and not self.accept_new_wheels:
-                return Rejected(Reason.UNKNOWN_ID, f"wheel id(s) {brief(new)} not in the wheel set "
-                                f"{brief(sorted(self._slot))} at stamp {p.stamp} ns")
+                return Rejected(Reason.UNKNOWN_ID, f"wheel id(s) {rules.brief(new)} not in the wheel set "
+                                f"{rules.brief(sorted(self._slot))} at stamp {p.stamp} ns")
             if len(self._slot_ids) + len(new) > self.policy.max_wheels:
-                return Rejected(Reason.TOO_MANY_WHEELS, f"{len(new)} new wheel id(s) ({brief(new)}) would make the "
-                                f"wheel set larger than max_wheels {self.policy.max_wheels}")
+                return Rejected(Reason.TOO_MANY_WHEELS, f"{len(new)} new wheel id(s) ({rules.brief(new)}) would make "
+                                f"the wheel set larger than max_wheels {self.policy.max_wheels}")
             for i in new:
                 self._register(i)
         slots = np.array([self._slot[i] for i in id_list], dtype=np.int64)
@@ -398,7 +390,7 @@ class OnlineTrackModel:
         if refusal.reason is not Reason.IMPLAUSIBLE_RESPONSE:
             return refusal
         tl = self.timeline
-        fate = tl.decide(p.stamp, RESPONSE_KEY, Reason.IMPLAUSIBLE_RESPONSE)
+        fate = tl.decide(p.stamp, rules.RESPONSE_KEY, Reason.IMPLAUSIBLE_RESPONSE)
         if fate is not Timeline.RESYNC:
             return Rejected(refusal.reason, clip(f"{str(refusal).split(': ', 1)[1]}; {tl.why(p.stamp, fate)}"))  # type: ignore[arg-type]
         slots = self._slots(p)
@@ -408,7 +400,7 @@ class OnlineTrackModel:
     def _refusal(self, res: FrameResponses, p: _Prepared) -> Rejected:
         """The refusal of the frame at which the kernel stopped."""
         if res.status == fk.STOP_INVALID:
-            reason = RULES[res.rule]
+            reason = rules.RULES[res.rule]
             assert reason is not None
             return Rejected(reason, self._value_message(reason, p, res.wheel))
         reason = Reason.OUTSIDE_WINDOW if res.status == fk.STOP_SHIFT else Reason.IMPLAUSIBLE_RESPONSE
@@ -440,13 +432,14 @@ class OnlineTrackModel:
         ps: list[_Prepared] = [prep[g] for g, _ in run]  # type: ignore[misc]
         R = len(run)
         epoch, dt = self.epoch_ns, self.dt_ns
-        if R == 1:
+        if R == 1:  # (a buffer of the model: the kernel's inputs live only for the call)
             p = ps[0]
-            tick = p.stamp - epoch
-            ints = np.array([self._prev_tick, tick, tick // dt, 0, p.positions.size, 0, p.speeds.size],
-                            dtype=np.int64)
-            ticks, k_end, offsets, soffsets = ints[0:2], ints[2:3], ints[3:5], ints[5:7]
+            tick, n = p.stamp - epoch, p.positions.size
+            ints = self._ints1
+            ints[0], ints[1], ints[2], ints[4], ints[6] = self._prev_tick, tick, tick // dt, n, p.speeds.size
+            ticks, k_end, offsets, soffsets = self._ints1_views
             slots, P, F, S = run[0][1], p.positions, p.forces, p.speeds
+            bounds = [0, n]
         else:
             ticks = np.array([self._prev_tick] + [p.stamp - epoch for p in ps], dtype=np.int64)
             k_end = ticks[1:] // dt
@@ -458,10 +451,10 @@ class OnlineTrackModel:
             np.cumsum([p.positions.size for p in ps], out=offsets[1:])
             soffsets = np.zeros(R + 1, dtype=np.int64)
             np.cumsum([p.speeds.size for p in ps], out=soffsets[1:])
+            bounds = offsets.tolist()
         k0 = self.sim._s.k
         res = self._advance(self._loads(ticks, k_end, offsets, slots, P, F, S, soffsets, len(self._slot_ids)))
         done = res.done
-        bounds = offsets.tolist()
         for r in range(done):
             out[run[r][0]] = self._response(ps[r], res, r, bounds[r], bounds[r + 1], False)
         if done:
@@ -526,9 +519,9 @@ class OnlineTrackModel:
             idx.flags.writeable = False
             x.flags.writeable = False
             sl = self._sleepers[first] = (idx, x)
-        return ResponseFrame(p.stamp, sl[0], sl[1], res.soil_force[r], res.rail_deflection[r],
-                             res.sleeper_displacement[r], res.area_displacement[r], p.ids.copy(),
-                             p.positions.copy(), res.wheel_deflection[a:b], res.wheel_velocity[a:b], resynced)
+        s, w = res.sleepers, res.wheels
+        return ResponseFrame._of(p.stamp, sl[0], sl[1], s[0, r], s[1, r], s[2, r], s[3, r], p.ids.copy(),
+                                 p.positions.copy(), w[0, a:b], w[1, a:b], resynced)
 
 
 __all__ = ["RUN_FRAMES", "OnlineTrackModel"]

@@ -104,7 +104,7 @@ from __future__ import annotations
 from clm_core.solver._frame_kernel import FrameLoads
 from clm_core.solver.loads import LoadFunction, Loads, LoadTable
 from clm_core.solver.operators import DofLayout, Operator, OperatorCache
-from clm_core.solver.records import Block, FrameResponses, Snapshot
+from clm_core.solver.records import Block, FrameResponses, SleeperFields, Snapshot
 from clm_core.solver.simulator import CHUNK_STEPS, TrackSimulator
 from clm_core.solver.state import PendingStep, SimulatorState
 from clm_core.solver.window import Orientation, Placement, Window
@@ -124,6 +124,7 @@ __all__ = [
     "PendingStep",
     "Placement",
     "SimulatorState",
+    "SleeperFields",
     "Snapshot",
     "TrackSimulator",
     "Window",

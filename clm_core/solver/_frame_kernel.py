@@ -26,10 +26,15 @@ Before a frame is stepped its values are checked (:func:`check_values`, the
 value rules of the online input policy): finite positions and forces, no
 infinite speed, forces not below ``-tensile``, not above the force bound,
 positions and speeds within theirs, and the wheels' span within what the
-window holds. It returns to Python (status in ``out.ctl``) when a frame
-breaks one of these (``STOP_INVALID``: nothing of the frame was done), when
-the window must move (``STOP_SHIFT``: the wheels' span at the next step
-leaves the allowed zone), when a frame's response fails its check
+window holds. A window that follows forwards is moved forwards by whole bays in
+the kernel (the rule of :meth:`clm_core.solver.window.Window.required`, the
+state shifted as :func:`clm_core.solver.window.shift_bays` and
+``shift_entries`` do) as long as the operator stays the same (no overridden
+sleeper in the new window). It returns to Python (status in ``out.ctl``)
+when a frame breaks a value rule (``STOP_INVALID``: nothing of the frame was
+done), when the window must move otherwise (``STOP_SHIFT``: backwards, over
+overridden sleepers, a fixed window, or wheels it cannot hold), when a
+frame's response fails its check
 (``STOP_RESPONSE``), or when every frame is done (``DONE``). The caller
 (:meth:`clm_core.solver.TrackSimulator.advance_frames`) moves the window and
 resumes, or restores the state.
@@ -45,21 +50,15 @@ tuple in C (3.1 us), which matters for a call per frame.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from clm_core.solver._kernels import (
-    StepOperator,
-    StepState,
-    _back_update,
-    _rhs_forward,
-    _sleeper_step,
-    _under_wheel,
-    hermite_wheel,
-)
+from clm_core.solver import _kernels as kern
+from clm_core.solver._kernels import StepOperator, StepState, hermite_wheel
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -68,10 +67,17 @@ IntArray = NDArray[np.int64]
 DONE, STOP_SHIFT, STOP_RESPONSE, STOP_INVALID = 0, 1, 2, 3
 #: Indices of ``out.ctl``: step count (in/out), frame (in: first to run; out: reached), status (out),
 #: number of load entries written to ``out.prev_dofs``/``prev_vals`` (out; -1: no step made), backup flag (in),
-#: the value rule a frame broke and the wheel that broke it (out, with ``STOP_INVALID``).
-CTL_K, CTL_FRAME, CTL_STATUS, CTL_PREV, CTL_BACKUP, CTL_RULE, CTL_WHEEL = 0, 1, 2, 3, 4, 5, 6
+#: the value rule a frame broke and the wheel that broke it (out, with ``STOP_INVALID``), the window's first
+#: sleeper at the end (out: the kernel may have shifted the window).
+CTL_K, CTL_FRAME, CTL_STATUS, CTL_PREV, CTL_BACKUP, CTL_RULE, CTL_WHEEL, CTL_FIRST = 0, 1, 2, 3, 4, 5, 6, 7
 #: Value rules of :func:`check_values` (0: none broken).
 RULE_NON_FINITE, RULE_TENSILE, RULE_FORCE, RULE_POSITION, RULE_SPEED, RULE_SPAN = 1, 2, 3, 4, 5, 6
+#: ``FrameGeometry.orient`` values.
+ORIENT_FORWARD, ORIENT_BACKWARD, ORIENT_FREE = 0, 1, 2
+#: Relative tolerance of the allowed zone and of the placement rule (as :mod:`clm_core.solver.window`).
+TOL = 1e-9
+#: Largest |position| [m] the kernel places itself (as :data:`clm_core.solver.window.MAX_POSITION`).
+MAX_POSITION = 1e12
 #: Indices of ``FrameLoads.limits``.
 LIM_POSITION, LIM_FORCE, LIM_TENSILE, LIM_SPEED, LIM_SPAN = 0, 1, 2, 3, 4
 #: Indices of ``out.ctl_f``: response bounds (in), span of the wheels at a shift stop (out).
@@ -79,30 +85,49 @@ CTF_MAX_FORCE, CTF_MAX_DISP, CTF_FRONT, CTF_REAR = 0, 1, 2, 3
 
 
 class FrameGeometry(NamedTuple):
-    """Where the rail of the window is, and where its wheels may be without a shift.
+    """Where the window is, its rail, and where its wheels may be without a shift.
 
     Attributes
     ----------
-    x0 : float
-        Position of rail node 0 [m].
-    Le : float
-        Rail element length [m].
+    first : int
+        Global index of the window's first sleeper.
+    orient : int
+        Its ghost bay (``ORIENT_*``): ahead (following forwards; the kernel
+        shifts such a window forwards itself when the operator stays the
+        same), behind, none (a fixed window).
+    x0rel : float
+        Position of rail node 0 relative to the first sleeper [m].
+    spacing, Le : float
+        Sleeper spacing and rail element length [m].
     n_el : int
-        Rail elements.
+        Rail elements of the window (``n_el + 1`` nodes).
     rail_w, rail_th : (n_el + 1,) int arrays
-        Deflection and rotation DOF of each rail node.
-    lo, hi : float
-        The allowed zone [m] widened by its tolerance: a step whose rearmost
-        wheel is below ``lo`` or foremost above ``hi`` stops the kernel.
+        The rail nodes' deflection and rotation DOFs.
+    lo_bay, hi_bay : int
+        The allowed zone in bays from the first sleeper
+        (:meth:`clm_core.solver.window.Window.limits`).
+    n_sleepers : int
+        Sleepers in the window.
+    dofs_per_bay : int
+        DOFs per sleeper bay (the stride of a shift).
+    touched : (t,) int array
+        Overridden sleepers, sorted: a window over one of them has another
+        operator (the kernel then stops, ``STOP_SHIFT``).
     """
 
-    x0: float
+    first: int
+    orient: int
+    x0rel: float
+    spacing: float
     Le: float
     n_el: int
     rail_w: IntArray
     rail_th: IntArray
-    lo: float
-    hi: float
+    lo_bay: int
+    hi_bay: int
+    n_sleepers: int
+    dofs_per_bay: int
+    touched: IntArray
 
 
 class FrameLoads(NamedTuple):
@@ -153,14 +178,9 @@ class FrameLoads(NamedTuple):
 class FrameBackup(NamedTuple):
     """Copies of the state taken at the first call of a run (``ctl[CTL_BACKUP]`` set), to restore it.
 
-    Attributes
-    ----------
-    u, v : (n,) arrays
-        Displacement [m] and velocity [m/s].
-    pk_force, pk_rail : (N,) arrays
-        Running peaks [N], [m].
-    P_prev, F_prev : (W,) arrays
-        The previous frame's wheels [m], [N].
+    The displacements ``u`` [m] and velocities ``v`` [m/s] (n,), the running
+    peaks ``pk_force`` [N] and ``pk_rail`` [m] (N,), and the previous frame's
+    wheels ``P_prev`` [m] and ``F_prev`` [N] (W,).
     """
 
     u: Array
@@ -176,32 +196,30 @@ class FrameOutputs(NamedTuple):
 
     Attributes
     ----------
-    force, rail, sleeper, area : (R, N) arrays
+    sleepers : (4, R, N) array
         Soil force [N], rail deflection above the sleeper, sleeper and
         contact-area displacement [m] at each frame's response step.
-    wdefl, wvel : (M,) arrays
+    first : (R,) int array
+        Global index of the window's first sleeper at each frame's response.
+    wheels : (2, M) array
         Rail deflection [m] and velocity [m/s] under each wheel entry.
-    prev_dofs, prev_vals : (4 W,) int array, (4 W,) array
+    prev_dofs, prev_vals : (q,) int array, (q,) array
         The load vector at the last step made, as (DOF, value [N]) pairs
-        (``ctl[CTL_PREV]`` of them).
-    pos, F : (W,) arrays
+        (``ctl[CTL_PREV]`` of them; q >= 4 W).
+    last : (2, W) array
         Wheel positions [m] (NaN: absent) and forces [N] at the last step made.
-    ctl : (7,) int array
+    ctl : (8,) int array
         Control registers (``CTL_*``).
     ctl_f : (4,) array
         Response bounds in, wheel span out (``CTF_*``).
     """
 
-    force: Array
-    rail: Array
-    sleeper: Array
-    area: Array
-    wdefl: Array
-    wvel: Array
+    sleepers: Array
+    first: IntArray
+    wheels: Array
     prev_dofs: IntArray
     prev_vals: Array
-    pos: Array
-    F: Array
+    last: Array
     ctl: IntArray
     ctl_f: Array
 
@@ -300,6 +318,51 @@ def _wheels_at(P0, F0, P1, F1, num, span, hold, Pc, Fc):  # type: ignore[no-unty
     return front, rear
 
 
+@njit(cache=True, inline="always")
+def _shift(a, m):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Move ``a`` by ``m`` entries towards its start (the window moved forwards); entries that enter are 0."""
+    n = a.shape[0]
+    if m >= n:
+        a[:] = 0.0
+        return
+    for i in range(n - m):
+        a[i] = a[i + m]
+    for i in range(n - m, n):
+        a[i] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _zone(first, geo):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """(x0, lo, hi) of the window whose first sleeper is ``first``: rail node 0 and the allowed zone with tolerance."""
+    d = geo.spacing
+    eps = TOL * d
+    return geo.x0rel + first * d, (first + geo.lo_bay) * d - eps, (first + geo.hi_bay) * d + eps
+
+
+@njit(cache=True, inline="always")
+def _forward_first(first, front, rear, geo):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """The first sleeper of the window moved forwards for wheels at ``rear .. front`` [m], or -1 for Python to do it.
+
+    The rule of :meth:`clm_core.solver.window.Window.required` for a forward
+    window that stays forward; -1 when the wheels are too far apart or too
+    far out, or when the new window (with its ghost bay) holds an overridden
+    sleeper (another operator).
+    """
+    if not (abs(front) <= MAX_POSITION and abs(rear) <= MAX_POSITION):
+        return -1
+    d = geo.spacing
+    g_lo = int(math.ceil(front / d - TOL - geo.hi_bay))
+    g_hi = int(math.floor(rear / d + TOL - geo.lo_bay))
+    if g_lo > g_hi or g_lo <= first:
+        return -1
+    t = geo.touched
+    if t.shape[0]:
+        i = np.searchsorted(t, g_lo)
+        if i < t.shape[0] and t[i] < g_lo + geo.n_sleepers + 1:
+            return -1
+    return g_lo
+
+
 @njit(cache=True)
 def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """Advance through frames ``ctl[CTL_FRAME]`` .. R - 1 in place; return the status (also in ``ctl``).
@@ -318,6 +381,7 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
     bk = FrameBackup(*a[4])
     out = FrameOutputs(*a[5])
     u, v, z, y = st.u, st.v, st.z, st.y
+    n = u.shape[0]
     ctl, ctf = out.ctl, out.ctl_f
     P_prev, F_prev = ld.P_prev, ld.F_prev
     W = P_prev.shape[0]
@@ -332,19 +396,28 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
         bk.F_prev[:] = F_prev
     max_force = ctf[CTF_MAX_FORCE]
     max_disp = ctf[CTF_MAX_DISP]
+    force, rail, sleeper, area = out.sleepers[0], out.sleepers[1], out.sleepers[2], out.sleepers[3]
+    first = geo.first
+    x0, lo, hi = _zone(first, geo)
     P1 = np.empty(W)
     F1 = np.empty(W)
     Pc = np.empty(W)
     Fc = np.empty(W)
-    pdofs = np.zeros(4 * W, dtype=np.int64)
-    pwts = np.zeros(4 * W)
     pP = np.full(W, np.nan)
     pF = np.zeros(W)
-    ppres = np.zeros(W, dtype=np.bool_)
     wd = np.zeros(4, dtype=np.int64)
     ww = np.zeros(4)
+    # the load vector f_n of the last step as (DOF, value) entries in wheel order: the state's at the start
+    cap = max(4 * W, st.prev_dofs.shape[0])
+    pe_d = np.empty(cap, dtype=np.int64)
+    pe_v = np.empty(cap)
+    pe_n = st.prev_dofs.shape[0]
+    for i in range(pe_n):
+        pe_d[i] = st.prev_dofs[i]
+        pe_v[i] = st.prev_vals[i]
     k = ctl[CTL_K]
     stepped = False
+    moved = False
     status = DONE
     j = ctl[CTL_FRAME]
     while j < R:
@@ -379,49 +452,64 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
                 break
         while k < ld.k_end[j]:
             front, rear = _wheels_at(P_prev, F_prev, P1, F1, (k + 1) * dt - t0, span, hold, Pc, Fc)
-            if front > geo.hi or rear < geo.lo:
-                ctf[CTF_FRONT] = front
-                ctf[CTF_REAR] = rear
-                status = STOP_SHIFT
-                break
+            if front > hi or rear < lo:
+                g = _forward_first(first, front, rear, geo) if geo.orient == ORIENT_FORWARD and rear >= lo else -1
+                if g < 0:
+                    ctf[CTF_FRONT] = front
+                    ctf[CTF_REAR] = rear
+                    status = STOP_SHIFT
+                    break
+                # the window moves forwards by whole bays, the operator stays: the state moves with it
+                m = (g - first) * geo.dofs_per_bay
+                _shift(u, m)
+                _shift(v, m)
+                _shift(st.pk_force, g - first)
+                _shift(st.pk_rail, g - first)
+                q = 0
+                for i in range(pe_n):
+                    dof = pe_d[i] - m
+                    if 0 <= dof < n:
+                        pe_d[q] = dof
+                        pe_v[q] = pe_v[i]
+                        q += 1
+                pe_n = q
+                first = g
+                x0, lo, hi = _zone(first, geo)
+                moved = True
             # loads f_n + f_{n+1} scattered into z (zero on entry); absent wheels add nothing
-            if stepped:
-                for w in range(W):
-                    if ppres[w]:
-                        fw = pF[w]
-                        for c in range(4 * w, 4 * w + 4):
-                            z[pdofs[c]] += pwts[c] * fw
-            else:
-                for q in range(st.prev_dofs.shape[0]):
-                    z[st.prev_dofs[q]] += st.prev_vals[q]
+            for i in range(pe_n):
+                z[pe_d[i]] += pe_v[i]
+            pe_n = 0
             for w in range(W):
                 pP[w] = Pc[w]
                 pF[w] = Fc[w]
-                ppres[w] = Pc[w] == Pc[w]
-                if ppres[w]:
-                    hermite_wheel(Pc[w], geo.x0, geo.Le, geo.n_el, geo.rail_w, geo.rail_th, pdofs, pwts, 4 * w)
+                if Pc[w] == Pc[w]:
+                    hermite_wheel(Pc[w], x0, geo.Le, geo.n_el, geo.rail_w, geo.rail_th, pe_d, pe_v, pe_n)
                     fw = Fc[w]
-                    for c in range(4 * w, 4 * w + 4):
-                        z[pdofs[c]] += pwts[c] * fw
-            _rhs_forward(op, u, v, z, y)
-            _back_update(op, u, v, z, y)
-            _sleeper_step(op, u, v, st.pk_force, st.pk_rail, out.force, out.rail, out.sleeper, out.area, -1)
+                    for c in range(pe_n, pe_n + 4):
+                        pe_v[c] *= fw
+                        z[pe_d[c]] += pe_v[c]
+                    pe_n += 4
+            kern._rhs_forward(op, u, v, z, y)
+            kern._back_update(op, u, v, z, y)
+            kern._sleeper_step(op, u, v, st.pk_force, st.pk_rail, force, rail, sleeper, area, -1)
             stepped = True
             k += 1
         if status != DONE:
             break
         # the response at the frame's last step: sleeper fields, and under its wheels at their positions
         ok = True
-        _sleeper_step(op, u, v, st.pk_force, st.pk_rail, out.force, out.rail, out.sleeper, out.area, j)
-        for i in range(out.force.shape[1]):
-            if not (abs(out.force[j, i]) <= max_force and abs(out.rail[j, i]) <= max_disp
-                    and abs(out.sleeper[j, i]) <= max_disp and abs(out.area[j, i]) <= max_disp):
+        out.first[j] = first
+        kern._sleeper_step(op, u, v, st.pk_force, st.pk_rail, force, rail, sleeper, area, j)
+        for i in range(force.shape[1]):
+            if not (abs(force[j, i]) <= max_force and abs(rail[j, i]) <= max_disp
+                    and abs(sleeper[j, i]) <= max_disp and abs(area[j, i]) <= max_disp):
                 ok = False
         for e in range(ld.offsets[j], ld.offsets[j + 1]):
-            hermite_wheel(ld.positions[e], geo.x0, geo.Le, geo.n_el, geo.rail_w, geo.rail_th, wd, ww, 0)
-            d, vel = _under_wheel(wd, ww, 0, u, v)
-            out.wdefl[e] = d
-            out.wvel[e] = vel
+            hermite_wheel(ld.positions[e], x0, geo.Le, geo.n_el, geo.rail_w, geo.rail_th, wd, ww, 0)
+            d, vel = kern._under_wheel(wd, ww, 0, u, v)
+            out.wheels[0, e] = d
+            out.wheels[1, e] = vel
             if not (abs(d) <= max_disp and abs(vel) < np.inf):
                 ok = False
         if not ok:
@@ -431,22 +519,20 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
             P_prev[w] = P1[w]
             F_prev[w] = F1[w]
         j += 1
-    # write back: the step count, and the wheels and load vector of the last step made
+    # write back: the step count, the window, and the wheels and load vector of the last step made
     ctl[CTL_K] = k
     ctl[CTL_FRAME] = j
     ctl[CTL_STATUS] = status
-    if stepped:
-        q = 0
-        for w in range(W):
-            out.pos[w] = pP[w]
-            out.F[w] = pF[w]
-            if ppres[w]:
-                fw = pF[w]
-                for c in range(4 * w, 4 * w + 4):
-                    out.prev_dofs[q] = pdofs[c]
-                    out.prev_vals[q] = pwts[c] * fw
-                    q += 1
-        ctl[CTL_PREV] = q
+    ctl[CTL_FIRST] = first
+    if stepped or moved:
+        for i in range(pe_n):
+            out.prev_dofs[i] = pe_d[i]
+            out.prev_vals[i] = pe_v[i]
+        ctl[CTL_PREV] = pe_n
+        if stepped:
+            for w in range(W):
+                out.last[0, w] = pP[w]
+                out.last[1, w] = pF[w]
     else:
         ctl[CTL_PREV] = -1
     return status

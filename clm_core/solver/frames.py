@@ -36,17 +36,17 @@ from numpy.typing import NDArray
 from clm_core.errors import InputError
 from clm_core.solver import _frame_kernel as fk
 from clm_core.solver.records import FrameResponses
+from clm_core.solver.window import Placement
 
 if TYPE_CHECKING:
     from clm_core.solver import _kernels as kern
-    from clm_core.solver.operators import DofLayout
+    from clm_core.solver.operators import DofLayout, OperatorCache
     from clm_core.solver.state import SimulatorState
-    from clm_core.solver.window import Placement, Window
+    from clm_core.solver.window import Window
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-_TOL = 1e-9
 
 
 def truncated(loads: fk.FrameLoads, r: int) -> fk.FrameLoads:
@@ -63,6 +63,7 @@ class FrameSteps:
     _layout: DofLayout
     _z: Array
     _y: Array
+    _ops: OperatorCache
 
     if TYPE_CHECKING:
 
@@ -120,19 +121,18 @@ class FrameSteps:
                              f"{s.k} (time going backwards)")
         sleepers = np.empty((4, R, self.n_sleepers))
         wheels = np.empty((2, M))
-        f8 = np.empty(6 * W)
+        q = max(4 * W, len(s.prev_dofs))
         ctl, ctl_f = self._frame_ctl
         ctl_f[fk.CTF_MAX_FORCE] = max_force
         ctl_f[fk.CTF_MAX_DISP] = max_displacement
-        out = fk.FrameOutputs(sleepers[0], sleepers[1], sleepers[2], sleepers[3], wheels[0], wheels[1],
-                              np.empty(4 * W, dtype=np.int64), f8[: 4 * W], f8[4 * W: 5 * W], f8[5 * W:], ctl, ctl_f)
         first = np.empty(R, dtype=np.int64)
+        out = fk.FrameOutputs(sleepers, first, wheels, np.empty(q, dtype=np.int64), np.empty(q), np.empty((2, W)),
+                              ctl, ctl_f)
         saved = (s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F)
-        done, status, failure = self._frames(loads, out, first)
+        done, status, failure = self._frames(loads, out)
         if status == fk.STOP_INVALID:  # nothing of the frame was done: the state is that after the one before
             rule, wheel = int(ctl[fk.CTL_RULE]), int(ctl[fk.CTL_WHEEL])
-            return FrameResponses(first, sleepers[0], sleepers[1], sleepers[2], sleepers[3], wheels[0], wheels[1],
-                                  done, failure, status, rule, wheel)
+            return FrameResponses(first, sleepers, wheels, done, failure, status, rule, wheel)
         if status != fk.DONE:
             bk = self._backup(W)
             s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F = saved
@@ -143,13 +143,12 @@ class FrameSteps:
             loads.P_prev[:] = bk.P_prev
             loads.F_prev[:] = bk.F_prev
             if done:
-                again, st, why = self._frames(truncated(loads, done), out, first)
+                again, st, why = self._frames(truncated(loads, done), out)
                 if st != fk.DONE or again != done:  # pragma: no cover - the computation is deterministic
                     raise RuntimeError(f"advance_frames: replay of {done} frames gave {again} ({why})")
-        return FrameResponses(first, sleepers[0], sleepers[1], sleepers[2], sleepers[3], wheels[0], wheels[1],
-                              done, failure, status)
+        return FrameResponses(first, sleepers, wheels, done, failure, status)
 
-    def _frames(self, loads: fk.FrameLoads, out: fk.FrameOutputs, first: IntArray) -> tuple[int, int, str]:
+    def _frames(self, loads: fk.FrameLoads, out: fk.FrameOutputs) -> tuple[int, int, str]:
         """Run the kernel through ``loads``, moving the window when it asks; (frames done, status, failure)."""
         ctl = out.ctl
         s = self._s
@@ -160,18 +159,19 @@ class FrameSteps:
         self._backup(len(loads.P_prev))
         assert self._frame_backup is not None
         args = (tuple(loads), self._frame_backup[1], tuple(out))
-        done = 0
         while True:
+            k_before = s.k
             status = fk.run_frames((s.op.kernel_plain, (s.u, s.v, self._z, self._y, s.prev_dofs, s.prev_vals,
                                     s.pk_force, s.pk_rail), self._geometry(), *args))
-            k, j, _, q, _, rule, wheel = ctl.tolist()
+            k, j, _, q, _, rule, wheel, first = ctl.tolist()
             ctl[fk.CTL_BACKUP] = 0
-            first[done:j] = s.placement.first
-            done = j
             s.k = k
+            if first != s.placement.first:  # the kernel moved the window forwards (same operator)
+                s.placement = Placement(first, s.placement.orientation)
             if q >= 0:
                 s.prev_dofs, s.prev_vals = out.prev_dofs[:q], out.prev_vals[:q]
-                s.pos, s.F = out.pos, out.F
+                if k != k_before:
+                    s.pos, s.F = out.last[0], out.last[1]
             if status == fk.DONE:
                 return R, status, ""
             if status == fk.STOP_INVALID:
@@ -191,16 +191,17 @@ class FrameSteps:
             self._move(p)
 
     def _geometry(self) -> tuple[object, ...]:
-        """Rail and allowed zone of the current placement, as the kernel takes it (cached for the last placement)."""
+        """The window as the kernel takes it (:class:`~clm_core.solver._frame_kernel.FrameGeometry`, plain; cached)."""
         p = self._s.placement
         cached = self._frame_geo
         if cached is not None and cached[0] == p:
             return cached[1]
-        lay = self._layout
-        lo, hi = self._window.allowed_range(p)
-        eps = _TOL * self._window.spacing
-        geo = tuple(fk.FrameGeometry(float(lay.node_x_rel[0] + p.first * lay.spacing), float(lay.Le),
-                                     int(lay.n_el), lay.rail_w, lay.rail_th, lo - eps, hi + eps))
+        lay, win = self._layout, self._window
+        lo, hi = win.limits(p.orientation)
+        orient = {"forward": fk.ORIENT_FORWARD, "backward": fk.ORIENT_BACKWARD}.get(p.orientation, fk.ORIENT_FREE)
+        geo = tuple(fk.FrameGeometry(p.first, orient, float(lay.node_x_rel[0]), float(lay.spacing), float(lay.Le),
+                                     int(lay.n_el), lay.rail_w, lay.rail_th, lo, hi, win.n_sleepers,
+                                     lay.dofs_per_bay, self._ops.values.touched))
         self._frame_geo = (p, geo)
         return geo
 

@@ -22,13 +22,11 @@ IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True)
-class Snapshot:
-    """State of the simulated track at one instant (copies; positive downwards).
+class SleeperFields:
+    """The window's sleepers at one instant (positive downwards): what a snapshot and an online response share.
 
     Attributes
     ----------
-    t : float
-        Time [s].
     sleeper_index : (N,) int64 array
         Global sleeper indices of the window.
     sleeper_x : (N,) array
@@ -42,6 +40,26 @@ class Snapshot:
         Sleeper displacement [m].
     area_displacement : (N,) array
         Soil contact-area displacement [m] (zeros for a rigid soil).
+    """
+
+    sleeper_index: IntArray
+    sleeper_x: Array
+    soil_force: Array
+    rail_deflection: Array
+    sleeper_displacement: Array
+    area_displacement: Array
+
+
+@dataclass(frozen=True)
+class Snapshot(SleeperFields):
+    """State of the simulated track at one instant (copies; positive downwards).
+
+    The sleeper fields of :class:`SleeperFields`, and:
+
+    Attributes
+    ----------
+    t : float
+        Time [s].
     wheel_positions : (n_w,) array
         Wheel positions [m] (NaN: wheel not on the track).
     wheel_forces : (n_w,) array
@@ -53,12 +71,6 @@ class Snapshot:
     """
 
     t: float
-    sleeper_index: IntArray
-    sleeper_x: Array
-    soil_force: Array
-    rail_deflection: Array
-    sleeper_displacement: Array
-    area_displacement: Array
     wheel_positions: Array
     wheel_forces: Array
     wheel_deflection: Array
@@ -148,9 +160,10 @@ class FrameResponses(NamedTuple):
     ----------
     first_sleeper : (R,) int64 array
         Global index of column 0 of each row's sleeper fields.
-    soil_force, rail_deflection, sleeper_displacement, area_displacement : (R, N) arrays
-        As in :class:`Snapshot` [N], [m].
-    wheel_deflection, wheel_velocity : (M,) arrays
+    sleepers : (4, R, N) array
+        Per frame and sleeper: soil force [N], rail deflection, sleeper and
+        contact-area displacement [m] (as in :class:`Snapshot`), in this order.
+    wheels : (2, M) array
         Rail deflection [m] and velocity [m/s] under each wheel entry, at its
         position in its frame.
     done : int
@@ -170,12 +183,8 @@ class FrameResponses(NamedTuple):
     """
 
     first_sleeper: IntArray
-    soil_force: Array
-    rail_deflection: Array
-    sleeper_displacement: Array
-    area_displacement: Array
-    wheel_deflection: Array
-    wheel_velocity: Array
+    sleepers: Array
+    wheels: Array
     done: int
     failure: str
     status: int = 0
@@ -183,4 +192,4 @@ class FrameResponses(NamedTuple):
     wheel: int = -1
 
 
-__all__ = ["Block", "FrameResponses", "Snapshot"]
+__all__ = ["Block", "FrameResponses", "SleeperFields", "Snapshot"]

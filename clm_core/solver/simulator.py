@@ -133,7 +133,7 @@ class TrackSimulator(TwoPhaseSteps, FrameSteps):
             pk_force=np.zeros(N), pk_rail=np.zeros(N),
         )
         self._chunk: _Chunk | None = None
-        self._frame_ctl = (np.zeros(7, dtype=np.int64), np.zeros(4))  # control registers of the per-frame kernel
+        self._frame_ctl = (np.zeros(8, dtype=np.int64), np.zeros(4))  # control registers of the per-frame kernel
         self._no_output = (np.zeros(0, dtype=np.int64), np.empty((0, N)))  # output buffers without a callback
 
     # ------------------------------------------------------------------ properties

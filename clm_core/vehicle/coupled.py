@@ -208,16 +208,23 @@ class CoupledResult:
         p_max, _, fb_max = masked_max(self.wheel_load, rows)
         p_min, _, _ = masked_min(self.wheel_load, rows)
         passed = window.sleepers(self.sleeper_x) & np.isfinite(self.peak_soil_force)
+        # rail deflection: under the wheels at the admitted instants, above the passed sleepers (as clm simulate)
+        w_wheel, _, fb_wheel = masked_max(self.rail_deflection, rows)
+        w_sleeper, _, fb_sleeper = masked_max(self.sleeper_rail_deflection, passed[None, :])
         exclusion = window.describe(self.sleeper_index, passed,
                                     instants_from_s=float(self.t[admitted][0]) if admitted.any() else None,
-                                    sleepers_fallback=not passed.any(), instants_fallback=fb_max)
+                                    sleepers_fallback=not passed.any() or fb_sleeper,
+                                    instants_fallback=fb_max or fb_wheel)
         exclusion["applies_to"] = ["peak_wheel_load_N", "min_wheel_load_N", "peak_sleeper_soil_force_N",
-                                   "peak_sleeper_index"]
+                                   "peak_sleeper_index", "max_rail_deflection_m", "max_rail_deflection_under_wheel_m",
+                                   "max_rail_deflection_above_sleeper_m"]
         exclusion["statistics_from_s"] = tf
         exclusion["whole_run"] = {"peak_wheel_load_N": float(self.wheel_load.max()),
                                   "min_wheel_load_N": float(self.wheel_load.min()),
                                   "peak_sleeper_soil_force_N": float(np.nanmax(self.peak_soil_force))
-                                  if np.isfinite(self.peak_soil_force).any() else None}
+                                  if np.isfinite(self.peak_soil_force).any() else None,
+                                  "max_rail_deflection_m": float(np.nanmax([np.nanmax(self.rail_deflection),
+                                                                            _nanmax(self.sleeper_rail_deflection)]))}
         return {
             "peak_wheel_load_N": p_max,
             "min_wheel_load_N": p_min,
@@ -227,6 +234,9 @@ class CoupledResult:
             "peak_sleeper_soil_force_N": peak_soil,
             "peak_sleeper_index": g_peak,
             "peak_basis": basis,
+            "max_rail_deflection_m": float(np.nanmax([w_wheel, w_sleeper])),
+            "max_rail_deflection_under_wheel_m": w_wheel,
+            "max_rail_deflection_above_sleeper_m": w_sleeper,
             "peak_exclusion": exclusion,
             "contact_loss_steps": steps,
             "contact_loss_events": events,
@@ -238,6 +248,11 @@ class CoupledResult:
             "newton_iterations_max": int(self.newton_iterations.max()),
             "newton_iterations_mean": float(self.newton_iterations[1:].mean()),
         }
+
+
+def _nanmax(a: Array) -> float:
+    """Largest finite value of ``a`` (NaN if none)."""
+    return float(np.nanmax(a)) if np.isfinite(a).any() else math.nan
 
 
 def window_size(span_bays: float, lead: int | None = None) -> int:

@@ -25,7 +25,7 @@ from typing import Any, Literal, cast
 from clm_core import settings
 from clm_core.errors import ParameterError
 from clm_core.params import ModelParams
-from clm_core.vehicle.coupled import CoupledSimulation
+from clm_core.vehicle.coupled import CoupledResult, CoupledSimulation
 from clm_core.vehicle.irregularity import (
     SPECTRA,
     DippedJoint,
@@ -261,10 +261,43 @@ def build_vehicle_run(spec: VehicleRunSpec, params: ModelParams) -> VehicleRun:
     return VehicleRun(spec=spec, simulation=sim, train=train, duration=spec.duration, settings=description)
 
 
+def simulate_vehicle(
+    spec: VehicleRunSpec, params: ModelParams, progress: bool = False
+) -> tuple[VehicleRun, CoupledResult, dict[str, Any]]:
+    """Build and run the coupled simulation of ``spec``; write nothing.
+
+    The one computing core of a vehicle run: ``clm simulate --vehicle``
+    (:func:`run_vehicle`, which then writes the outputs) and every case of
+    ``clm study`` (:mod:`clm_core.studies`) call it, so a study row and the
+    ``summary.json`` of the same run alone hold the same numbers.
+
+    Parameters
+    ----------
+    spec : VehicleRunSpec
+    params : ModelParams
+    progress : bool
+        Show a progress bar (on a terminal).
+
+    Returns
+    -------
+    (VehicleRun, CoupledResult, dict)
+        The built run, its time histories and the summary
+        (:meth:`CoupledResult.summary` with ``settings`` and
+        ``sleeper_passing_frequency_Hz``; described in :func:`run_vehicle`).
+    """
+    run = build_vehicle_run(spec, params)
+    sim = run.simulation
+    res = sim.run(run.duration, progress=progress)
+    summary = res.summary()
+    summary.update({"settings": run.settings})
+    summary["sleeper_passing_frequency_Hz"] = sim.speed / params.track.spacing if sim.speed > 0 else None
+    return run, res, summary
+
+
 def run_vehicle(
     spec: VehicleRunSpec, params: ModelParams, out_dir: str | Path, csv_files: bool = True, progress: bool = False
 ) -> dict[str, Any]:
-    """Build and run the coupled simulation of ``spec``; write its outputs into ``out_dir``.
+    """Build and run the coupled simulation of ``spec`` (:func:`simulate_vehicle`); write its outputs into ``out_dir``.
 
     Parameters
     ----------
@@ -284,25 +317,20 @@ def run_vehicle(
     dict
         The summary written to ``summary.json``: ``peak_wheel_load_N``,
         ``rms_wheel_load_N``, ``rms_dynamic_wheel_load_N``,
-        ``peak_sleeper_soil_force_N``, ``contact_loss_steps``,
-        ``contact_loss_events``, ``real_time_factor`` (simulated / wall time of
-        the stepping), ``peak_exclusion`` (which part of the run the peaks come
-        from) and ``settings``.
+        ``peak_sleeper_soil_force_N``, ``max_rail_deflection_m``,
+        ``contact_loss_steps``, ``contact_loss_events``, ``real_time_factor``
+        (simulated / wall time of the stepping), ``peak_exclusion`` (which
+        part of the run the peaks come from) and ``settings``.
     """
     from clm_core.io.history import write_coupled_history, write_json
     from clm_core.io.plots import plot_vehicle_run
 
-    run = build_vehicle_run(spec, params)
-    sim = run.simulation
-    res = sim.run(run.duration, progress=progress)
+    run, res, summary = simulate_vehicle(spec, params, progress=progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    summary = res.summary()
-    summary.update({"settings": run.settings})
-    summary["sleeper_passing_frequency_Hz"] = sim.speed / params.track.spacing if sim.speed > 0 else None
     s = run.settings
     write_coupled_history(res, out, csv_files=csv_files)
-    plot_vehicle_run(res, out, title=f"{s['vehicle']} x{len(s['cars'])}, {sim.speed:g} m/s, {s['model']}, "
+    plot_vehicle_run(res, out, title=f"{s['vehicle']} x{len(s['cars'])}, {run.simulation.speed:g} m/s, {s['model']}, "
                      f"irregularity {s['irregularity']}")
     write_json(out / "summary.json", summary)
     return summary

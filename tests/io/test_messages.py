@@ -29,7 +29,7 @@ T = TS.types
 
 
 def _defs(root: Path) -> dict[str, bytes]:
-    files = sorted((*root.glob("msg/*.msg"), *root.glob("srv/*.srv")))
+    files = sorted((*root.glob("msg/*.msg"), *root.glob("srv/*.srv"), *root.glob("action/*.action")))
     return {str(p.relative_to(root)): p.read_bytes() for p in files}
 
 
@@ -49,6 +49,31 @@ def test_interface_dir_order(tmp_path: Path) -> None:
     types = msgs.clm_types(msgs.packaged_interface_dir())
     assert types == msgs.clm_types(msgs.source_interface_dir())
     assert {"clm_msgs/msg/WheelLoads", "clm_msgs/srv/Calibrate_Request", "clm_msgs/srv/Calibrate_Event"} <= set(types)
+    # the action's parts, as rosidl generates them (feedback topic, goal and result services)
+    assert {f"clm_msgs/action/Calibrate_{part}" for part in (
+        "Goal", "Result", "Feedback", "FeedbackMessage", "SendGoal_Request", "SendGoal_Response", "SendGoal_Event",
+        "GetResult_Request", "GetResult_Response", "GetResult_Event")} <= set(types)
+
+
+def test_action_parts_in_the_store() -> None:
+    """Goal, result and feedback of clm_msgs/action/Calibrate round-trip through rosbags' CDR."""
+    goal = T["clm_msgs/action/Calibrate_Goal"](
+        bag_path="b", method="impact", allow_partial=False, fmin=-1.0, fmax=140.0, norm="", model="",
+        compare=True, n_areas=0, first_estimate="", interval="noise", fit=["kp", "kb"], soil="", n_sleepers=0,
+        params_file="", channels="", initial_names=["kf"], initial_values=np.array([7e7]), max_nfev=0,
+        options_yaml="", push_to_node=True, target_node="/clm_track_node",
+    )
+    uuid = T["unique_identifier_msgs/msg/UUID"](uuid=np.arange(16, dtype=np.uint8))
+    req = T["clm_msgs/action/Calibrate_SendGoal_Request"](goal_id=uuid, goal=goal)
+    back = TS.deserialize_cdr(TS.serialize_cdr(req, "clm_msgs/action/Calibrate_SendGoal_Request"),
+                              "clm_msgs/action/Calibrate_SendGoal_Request")
+    assert back.goal.fit == ["kp", "kb"] and back.goal.fmax == 140.0 and list(back.goal_id.uuid) == list(range(16))
+    fb = T["clm_msgs/action/Calibrate_FeedbackMessage"](
+        goal_id=uuid, feedback=T["clm_msgs/action/Calibrate_Feedback"](stage="clm fit", fraction=0.6, message="m",
+                                                                         elapsed=1.5))
+    back_fb = TS.deserialize_cdr(TS.serialize_cdr(fb, "clm_msgs/action/Calibrate_FeedbackMessage"),
+                                 "clm_msgs/action/Calibrate_FeedbackMessage")
+    assert (back_fb.feedback.stage, back_fb.feedback.fraction) == ("clm fit", 0.6)
 
 
 def test_a_broken_definition_is_named(tmp_path: Path) -> None:
@@ -58,6 +83,11 @@ def test_a_broken_definition_is_named(tmp_path: Path) -> None:
         msgs.clm_types(tmp_path)
     with pytest.raises(MessageError, match=r"no msg/\*.msg files"):
         msgs.clm_types(tmp_path / "msg")
+    (tmp_path / "msg" / "Bad.msg").write_text("float64 x\n")
+    (tmp_path / "action").mkdir()
+    (tmp_path / "action" / "Do.action").write_text("float64 x\n---\nbool ok\n")
+    with pytest.raises(MessageError, match=r'Do.action: expected 2 "---" line\(s\), found 1'):
+        msgs.clm_types(tmp_path)
 
 
 def _text(pkg: str, name: str) -> str:

@@ -24,6 +24,7 @@ pytest.importorskip(
     "`bash scripts/setup_ros.sh VENV` (ROS 2 Jazzy wheels + interface package)",
 )
 
+from clm_msgs.action import Calibrate as CalibrateAction  # noqa: E402
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse  # noqa: E402
 from clm_msgs.srv import Calibrate  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
@@ -195,6 +196,38 @@ def test_calibrate_service_parts(ts: Any) -> None:
     assert list(got_event.response) == []
 
 
+def test_calibrate_action_parts(ts: Any) -> None:
+    """The action's goal, feedback message and result: rosbags and rclpy give the same bytes."""
+    T = ts.types
+    goal = CalibrateAction.Goal(bag_path="/data/bag ü", method="receptance", fmax=400.0, fit=["kp", "ms"],
+                                initial_names=["kp"], initial_values=[1.1e8], push_to_node=True,
+                                target_node="/clm_track_node")
+    assert math.isclose(goal.fmin, -1.0) and goal.compare is True and goal.n_areas == 0  # the .action defaults
+    back = ts.deserialize_cdr(serialize_message(goal), "clm_msgs/action/Calibrate_Goal")
+    assert (back.bag_path, back.method, back.fmax, back.fit, back.compare) == (
+        "/data/bag ü", "receptance", 400.0, ["kp", "ms"], True)
+    assert list(back.initial_values) == [1.1e8]
+    fb = CalibrateAction.Impl.FeedbackMessage()
+    fb.goal_id.uuid = list(range(16))
+    fb.feedback = CalibrateAction.Feedback(stage="clm fit", fraction=0.6, message="fitting", elapsed=2.5)
+    rb = ts.deserialize_cdr(serialize_message(fb), "clm_msgs/action/Calibrate_FeedbackMessage")
+    assert list(rb.goal_id.uuid) == list(range(16)) and rb.feedback.stage == "clm fit"
+    res = T["clm_msgs/action/Calibrate_GetResult_Response"](
+        status=4,
+        result=T["clm_msgs/action/Calibrate_Result"](
+            success=True, message="ok", method="impact", model="clm", fmin=2.0, fmax=150.0, norm="weighted",
+            names=["kf"], units=["N/m"], values=np.array([7.2e7]), std_error=np.array([6e5]),
+            ci95_low=np.array([7.1e7]), ci95_high=np.array([7.3e7]), identifiable=np.array([True]),
+            at_bound=np.array([False]), misfit=0.04, rms_residual=1.01, n_areas=41, fit_duration=1.5,
+            warnings=[], parameters_yaml="soil: {}\n", push_requested=False, push_target="", push_accepted=False,
+            push_reason="", metrics_json="{}"),
+    )
+    got = deserialize_message(bytes(ts.serialize_cdr(res, "clm_msgs/action/Calibrate_GetResult_Response")),
+                              CalibrateAction.Impl.GetResultService.Response)
+    assert got.status == 4 and list(got.result.names) == ["kf"] and list(got.result.ci95_high) == [7.3e7]
+    assert list(got.result.identifiable) == [True] and got.result.n_areas == 41
+
+
 def _installed_share() -> Path:
     """share/clm_msgs of the installation rclpy imports clm_msgs from."""
     import clm_msgs
@@ -219,8 +252,9 @@ def test_installed_definitions_match_the_source_tree() -> None:
     """Fails when a .msg/.srv was edited but not rebuilt (rerun setup_ros.sh)."""
     share = _installed_share()
     src = source_interface_dir()
-    src_files = sorted(p.relative_to(src) for p in (*src.glob("msg/*.msg"), *src.glob("srv/*.srv")))
-    inst_files = sorted(p.relative_to(share) for p in (*share.glob("msg/*.msg"), *share.glob("srv/*.srv")))
+    pattern = ("msg/*.msg", "srv/*.srv", "action/*.action")
+    src_files = sorted(p.relative_to(src) for g in pattern for p in src.glob(g))
+    inst_files = sorted(p.relative_to(share) for g in pattern for p in share.glob(g))
     assert inst_files == src_files
     for rel in src_files:
         assert (share / rel).read_text() == (src / rel).read_text(), f"{rel} differs: rebuild clm_msgs"
@@ -230,11 +264,11 @@ def test_rihs01_hashes_match_rosidl(ts: Any) -> None:
     """rosbags' RIHS01 hash of every clm_msgs type equals the one rosidl generated."""
     share = _installed_share()
     checked = []
-    for path in sorted((*share.glob("msg/*.json"), *share.glob("srv/*.json"))):
+    for path in sorted((*share.glob("msg/*.json"), *share.glob("srv/*.json"), *share.glob("action/*.json"))):
         for entry in json.loads(path.read_text())["type_hashes"]:
             name = entry["type_name"]
             if not name.startswith("clm_msgs/") or name not in ts.types:
-                continue  # the service pseudo-type clm_msgs/srv/Calibrate itself
+                continue  # the pseudo-types clm_msgs/srv/Calibrate, clm_msgs/action/Calibrate_SendGoal ...
             if name.endswith("_Event"):
                 # rosbags' Jazzy store declares service_msgs/ServiceEventInfo
                 # client_gid as char[16], rosidl hashes it as uint8[16]: the
@@ -246,3 +280,6 @@ def test_rihs01_hashes_match_rosidl(ts: Any) -> None:
         assert f"clm_msgs/msg/{name}" in checked
     assert "clm_msgs/srv/Calibrate_Request" in checked
     assert "clm_msgs/srv/Calibrate_Response" in checked
+    for part in ("Goal", "Result", "Feedback", "FeedbackMessage", "SendGoal_Request", "SendGoal_Response",
+                 "GetResult_Request", "GetResult_Response"):
+        assert f"clm_msgs/action/Calibrate_{part}" in checked

@@ -48,9 +48,9 @@ def test_frames_are_the_steps_of_advance(mev: ModelParams) -> None:
         snap = b.snapshot()
         assert res.first_sleeper[r] == snap.sleeper_index[0]
         scale = np.abs(snap.soil_force).max()
-        np.testing.assert_allclose(res.soil_force[r], snap.soil_force, rtol=0, atol=1e-9 * scale)
-        np.testing.assert_allclose(res.rail_deflection[r], snap.rail_deflection, rtol=1e-9, atol=1e-15)
-        np.testing.assert_allclose(res.wheel_deflection[2 * r: 2 * r + 2], snap.wheel_deflection, rtol=1e-9)
+        np.testing.assert_allclose(res.sleepers[0, r], snap.soil_force, rtol=0, atol=1e-9 * scale)
+        np.testing.assert_allclose(res.sleepers[1, r], snap.rail_deflection, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(res.wheels[0, 2 * r: 2 * r + 2], snap.wheel_deflection, rtol=1e-9)
     np.testing.assert_allclose(a.state_vectors()[0], b.state_vectors()[0], rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(a.peaks()[1], b.peaks()[1], rtol=1e-9)
 
@@ -79,7 +79,7 @@ def test_a_refused_frame_restores_the_state_exactly(mev: ModelParams) -> None:
         assert x.tobytes() == y.tobytes()
     assert a.placement == b.placement and a._s.k == b._s.k and la.P_prev.tobytes() == lb.P_prev.tobytes()
     assert a._s.prev_vals.tobytes() == b._s.prev_vals.tobytes()
-    assert res.soil_force[:d].tobytes() == ref.soil_force.tobytes()
+    assert res.sleepers[:, :d].tobytes() == ref.sleepers.tobytes()
 
 
 def test_values_checked_before_a_frame_is_stepped(mev: ModelParams) -> None:

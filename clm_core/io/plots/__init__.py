@@ -23,6 +23,8 @@ Figures (file, function, command that writes it):
 ``time_histories.png``
 ``sums.png``,                   :func:`plot_soil_calibration`  ``clm soil-calibrate``
 ``receptances.png``
+``critical_speed.png``,         :func:`plot_study`             ``clm study``
+``exceedance.png``
 ==============================  =============================  ==========================
 
 Rules every figure follows (and the tests check on every figure the suite
@@ -43,16 +45,20 @@ from clm_core.io.plots.calibration import (
 )
 from clm_core.io.plots.frequency import plot_chain, plot_receptance
 from clm_core.io.plots.runs import plot_demo, plot_run, plot_vehicle_run
+from clm_core.io.plots.studies import plot_critical_speed, plot_exceedance, plot_study
 
 __all__ = [
     "MAX_WHEEL_PANELS",
     "figure_observers",
     "plot_calibration",
     "plot_chain",
+    "plot_critical_speed",
     "plot_demo",
+    "plot_exceedance",
     "plot_receptance",
     "plot_run",
     "plot_soil_calibration",
+    "plot_study",
     "plot_sums",
     "plot_time_histories",
     "plot_transfer_functions",

@@ -1,520 +1,589 @@
-"""The calibration node: a service that fits model parameters to a recorded bag.
+"""The calibration node: fits model parameters to a recorded bag, as an action with progress and cancel.
 
-``clm_calibration_node`` offers ``~/calibrate`` (``clm_msgs/srv/Calibrate``,
-``/clm_calibration_node/calibrate`` with the default name). A request names a
-bag, a method (``impact``, ``receptance``, ``passby``; empty: the
-``default_method`` parameter) and options (``options_yaml``, the mapping of
-:class:`clm_core.calibration.CalibrationOptions`); the node calls
-:func:`clm_core.calibration.calibrate`, the same code path as
-``clm calibrate``, and answers with
+``clm_calibration_node`` offers, under one name (``/clm_calibration_node/calibrate``
+with the default node name):
 
-- ``parameters_yaml``: the full parameter file (rail, track, fitted soil or
-  track), which the track node (``-p params_file:=FILE``) and the CLI
-  (``--params FILE``) load directly;
-- ``metrics_json``: :meth:`CalibrationResult.summary` (band, norm, values with
-  95 % intervals, residual statistics, identifiability warnings, record
-  notes) plus a ``push`` section;
-- ``success`` and a one-line ``message``. Every error (missing or corrupt
-  bag, unknown method, bad options, a fit that cannot be done) gives
-  ``success = false`` with the reason; the node keeps serving.
+- the **action** ``clm_msgs/action/Calibrate``: the goal names a bag, a
+  method (``impact``, ``receptance``, ``passby``; empty: the
+  ``default_method`` parameter) and typed options (band, norm, soil model,
+  chain length or automatic, interval method, fitted names, starting values,
+  ...; ``options_yaml`` for the rare rest) and optionally a node to push the
+  fitted parameters to. Feedback: ``stage``, ``fraction`` (0 to 1, never
+  decreasing), ``message``, ``elapsed``, at every progress report of
+  :func:`clm_core.calibration.calibrate` (impact test: reading bag, records
+  checked, transfer functions, CLM fit, comparison fits, done) and at the
+  push. Result: ``success``, a one-line ``message``, the fitted parameters
+  (``names``, ``units``, ``values``, ``std_error``, ``ci95_low``,
+  ``ci95_high``, ``identifiable``, ``at_bound``), fit quality (``misfit``,
+  ``rms_residual``, ``n_areas``, ``fit_duration``, ``warnings``), the
+  parameter file (``parameters_yaml``), the push outcome and ``metrics_json``
+  (``summary.json``: first estimate, comparisons, chain trials, residual
+  check, record information).
+- the **service** ``clm_msgs/srv/Calibrate`` (options as YAML): the same
+  queue, the same code path, the same outcome, without feedback or cancel.
 
-With ``push_to_node`` the fitted parameters go to a running track node
-(``target_node``, e.g. ``/clm_track_node``) as ``<section>.<name>`` DOUBLE
-parameters (``soil.mf``, ``soil.kf``, ... or ``track.kp``, ...; see
-:func:`push_values`) through its ``set_parameters_atomically`` service: the
-track node validates the whole set against its own configuration and either
-takes all of it or none. A refusal keeps the track node's parameters; the
-response then has ``success = false``, says that the fit itself succeeded
-and quotes the track node's reason (the fitted parameters are still in
-``parameters_yaml`` / ``metrics_json``).
+Terminal states: SUCCEEDED (fit done and, if asked, pushed), ABORTED (bad
+bag, path, method or options, a fit that cannot be done, a refused or failed
+push: ``message`` says which; a fit that succeeded before a failed push is
+still in the result), CANCELED (cancel accepted; the result says at which
+stage).
 
-Threading: the service runs in a reentrant callback group of a
-:class:`~rclpy.executors.MultiThreadedExecutor`, so the fit occupies one
-executor thread while the others keep answering (parameter services, the
-push client's responses, a second request). One calibration runs at a time;
-a request arriving meanwhile is answered at once with ``success = false``
-and a message starting with ``busy``.
+**One calibration at a time, the others queued.** Goals and service calls
+are run in arrival order by one worker thread; a goal waiting its turn stays
+ACCEPTED and gets a ``queued`` feedback. At most ``max_queued`` wait: a goal
+arriving when the queue is full is rejected (logged, counted in
+``/diagnostics``), a service call is answered at once with ``success =
+false`` and a message starting with ``busy``. ``max_queued = 0``: no queue,
+reject while busy.
+
+**Cancel.** A running fit stops at its next progress report (the longest
+stretch without one is the main fit, about 0.2-1 s for the shipped impact
+bag) and the goal ends CANCELED; a queued goal ends CANCELED within 0.05 s. A
+cancel arriving during the push does not interrupt it (one atomic request,
+bounded by ``push_timeout``): the goal ends with the push's outcome.
+
+**Push.** With ``push_to_node`` the fitted parameters go to a running track
+node (``target_node``, e.g. ``/clm_track_node``) as ``<section>.<name>``
+DOUBLE parameters (:func:`clm_ros.calibration_push.push_values`) through its
+``set_parameters_atomically`` service: the track node validates the whole set
+against its own configuration and takes all of it or none. A refusal, a
+target that is not running or that stops answering (dies) within
+``push_timeout`` is logged, reported in the result and in ``/diagnostics``;
+the node keeps serving and the next push reaches a target that has come
+back.
+
+**Diagnostics.** ``/diagnostics`` every ``diagnostics_period`` and at every
+start and end of a calibration: state (idle, running), queue length, counts
+of goals accepted, rejected, succeeded, failed, canceled, the running goal's
+stage and fraction, the last fit's outcome, misfit and duration, the last
+push's target and outcome. Level WARN when the last calibration or push
+failed.
+
+**Threading.** The callbacks (goals, cancels, service calls, timers) run in
+a single-threaded executor and never block; the fit and the push run one at
+a time in a worker thread, which publishes the feedback and completes the
+goal's future.
+
+**Shutdown.** SIGINT or SIGTERM: no new goal is accepted, queued goals are
+aborted, a running fit is stopped at its next progress report (given at
+most :data:`SHUTDOWN_GRACE` s; the fit runs in a daemon thread, so a stage
+that takes longer does not hold the exit), the results go out, and the
+process exits with code 0 (within 2 s).
 
 Parameters
 ----------
 default_method : str
-    Method used when a request leaves ``method`` empty (default ``impact``).
+    Method used when a goal or request leaves ``method`` empty (default ``impact``).
 push_timeout : float
-    How long a push waits for the target's parameter service to appear and
-    answer [s] (default 10).
+    How long a push waits for the target's parameter service and its answer [s] (default 10).
+max_queued : int
+    Goals and requests that may wait while one runs (default 4).
+diagnostics_period : float
+    Period of ``/diagnostics`` [s] (default 1; read-only).
 
 Run: ``python -m clm_ros.calibration_node`` or the console script
 ``calibration_node`` (``ros2 run clm_ros calibration_node`` in a full ROS
-install); call with e.g. ``ros2 service call /clm_calibration_node/calibrate
-clm_msgs/srv/Calibrate "{bag_path: bags/calibration/impact_mevergnies,
-method: impact}"``.
+install); ``ros2 action send_goal --feedback /clm_calibration_node/calibrate
+clm_msgs/action/Calibrate "{bag_path: bags/calibration/impact_mevergnies,
+fmax: 140.0}"``.
 """
 
 from __future__ import annotations
 
-import math
+import os
+import queue
+import signal
 import sys
 import threading
 import time
 import traceback
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections import Counter, deque
 from pathlib import Path
 from typing import Any
 
 import rclpy
+from clm_msgs.action import Calibrate as CalibrateAction
 from clm_msgs.srv import Calibrate
-from rcl_interfaces.msg import (
-    Parameter,
-    ParameterType,
-    ParameterValue,
-    SetParametersResult,
-)
-from rcl_interfaces.srv import SetParametersAtomically
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.client import Client
-from rclpy.exceptions import InvalidParameterValueException, NameValidationException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import ServerGoalHandle
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.validate_full_topic_name import validate_full_topic_name
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 
-from clm_core.calibration import BagError, CalibrationError, CalibrationResult, calibrate
+from clm_core.calibration import BagError, CalibrationError, calibrate
 from clm_core.calibration.options import METHODS
 from clm_core.errors import ClmError
-from clm_core.io.history import dumps_json
-from clm_core.params import PARAMETER_DOCS, SOIL_NAMES
 from clm_core.settings import Setting
-from clm_ros.parameters import NODE_SETTINGS, declare_settings
+from clm_ros.calibration_goal import (
+    ABORTED,
+    CANCELED,
+    SUCCEEDED,
+    CalibrationOutcome,
+    CalibrationRequest,
+    action_result,
+    failed,
+    fit_message,
+    request_from_goal,
+    request_from_service,
+    service_response,
+)
+from clm_ros.calibration_push import (
+    ParameterPusher,
+    PushOutcome,
+    one_line,
+    parameter_messages,
+    push_values,
+    target_service,
+)
+from clm_ros.parameters import declare_settings
+
+__all__ = ["CalibrationNode", "PushOutcome", "main", "parameter_messages", "push_values", "target_service"]
 
 NODE_NAME = "clm_calibration_node"
-#: Service name, relative to the node (``/clm_calibration_node/calibrate``).
-SERVICE_NAME = "~/calibrate"
-#: Default of the ``push_timeout`` parameter [s].
-DEFAULT_PUSH_TIMEOUT: float = NODE_SETTINGS["push_timeout"].default
-#: The ``default_method`` parameter.
+#: Action and service name, relative to the node (``/clm_calibration_node/calibrate``).
+ACTION_NAME = SERVICE_NAME = "~/calibrate"
+#: How long a shutdown waits for a running fit to stop at its next progress report [s].
+SHUTDOWN_GRACE = 0.5
+#: After the last calibration ended, how long a shutdown keeps spinning so its result reaches the client [s].
+FLUSH_S = 0.2
+#: How often queued goals are checked for a cancel request [s].
+QUEUE_POLL_S = 0.05
+#: Share of the feedback fraction given to the fit when a push follows.
+FIT_SHARE_WITH_PUSH = 0.9
+
 DEFAULT_METHOD: Setting[str] = Setting("default_method", str, "impact", "-",
-                                       "method used when a request leaves 'method' empty", choices=METHODS)
+                                       "method used when a goal leaves 'method' empty", choices=METHODS)
+MAX_QUEUED: Setting[int] = Setting("max_queued", int, 4, "-", "goals that may wait while one runs (0: reject "
+                                   "while busy)", minimum=0, maximum=1000)
 
 
-class CalibrationCancelled(BaseException):
-    """Raised inside a running fit (from its progress callback) when the node shuts down.
+class CalibrationStopped(BaseException):
+    """Raised inside a running fit (from its progress callback) on cancel or shutdown.
 
     A ``BaseException`` so that no ``except Exception`` on the way swallows it.
     """
 
 
-@dataclass(frozen=True)
-class PushOutcome:
-    """Result of pushing parameters to a node.
+class _Job:
+    """One calibration in the node: the request, its goal (None for a service call), its state."""
 
-    Attributes
-    ----------
-    target : str
-        Fully qualified target node name (``/clm_track_node``).
-    service : str
-        The parameter service called.
-    accepted : bool
-        True if the target took every parameter.
-    reason : str
-        Why not (the target's refusal reason, or a timeout / unreachable
-        service); empty when accepted.
-    values : mapping
-        The parameters sent, ``{'soil.kf': value, ...}`` [SI].
-    elapsed_s : float
-        Wall time of the push [s].
-    """
+    def __init__(self, request: CalibrationRequest, goal: ServerGoalHandle | None, label: str) -> None:
+        self.request = request
+        self.goal = goal
+        self.label = label
+        self.done = Future()  # CalibrationOutcome, set by the worker (or by a shutdown)
+        self.state = "queued"  # queued | running | dropped (canceled or aborted before it started)
+        self.started = 0.0
+        self.stage = "queued"
+        self.fraction = 0.0
 
-    target: str
-    service: str
-    accepted: bool
-    reason: str
-    values: Mapping[str, float] = field(default_factory=dict)
-    elapsed_s: float = 0.0
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready mapping (the ``push`` section of ``metrics_json``)."""
-        return {
-            "requested": True,
-            "target": self.target,
-            "service": self.service,
-            "accepted": self.accepted,
-            "reason": self.reason,
-            "values": dict(self.values),
-            "elapsed_s": self.elapsed_s,
-        }
-
-
-def push_values(result: CalibrationResult) -> dict[str, float]:
-    """The parameters a calibration pushes to a track node, as ``{'<section>.<name>': value}``.
-
-    Parameters
-    ----------
-    result : CalibrationResult
-        A successful calibration (its parameter set is validated by clm_core).
-
-    Returns
-    -------
-    dict
-        ``impact``: the whole fitted soil, ``soil.mf soil.kf soil.df
-        soil.kc soil.dc``, with the parameters the fitted model does not
-        have set to 0 (a Lysmer fit gives a CLM soil without coupling; a
-        Winkler fit has no soil mass, which a Lysmer/CLM track node
-        refuses). ``receptance`` / ``passby``: the fitted parameters only
-        (``track.kp``, ..., plus ``soil.*`` with a joint soil fit); the
-        parameters held fixed come from the calibration's base set and are
-        not imposed on the target. Values are taken from the validated
-        parameter set, all finite.
-
-    Raises
-    ------
-    CalibrationError
-        A fitted name that is not a model parameter or a non-finite value
-        (not expected from a successful calibration).
-    """
-    params = result.params
-    if result.method == "impact":
-        names = list(SOIL_NAMES)
-    else:
-        names = [p.name for p in result.parameters if p.fitted]
-    out: dict[str, float] = {}
-    for name in names:
-        if name not in PARAMETER_DOCS:
-            raise CalibrationError(f"fitted parameter {name!r} is not a model parameter; cannot push it")
-        section = PARAMETER_DOCS[name][0]
-        value = float(getattr(getattr(params, section), name))
-        if not math.isfinite(value):
-            raise CalibrationError(f"{section}.{name} = {value}: not finite; not pushed")
-        out[f"{section}.{name}"] = value
-    return out
-
-
-def parameter_messages(values: Mapping[str, float]) -> list[Parameter]:
-    """``rcl_interfaces/msg/Parameter`` DOUBLE messages for ``{name: value}``."""
-    return [
-        Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(v)))
-        for name, v in values.items()
-    ]
-
-
-def target_service(target_node: str) -> tuple[str, str]:
-    """Fully qualified node name and its ``set_parameters_atomically`` service.
-
-    Parameters
-    ----------
-    target_node : str
-        Node name, absolute (``/clm_track_node``, ``/ns/clm_track_node``) or
-        relative to the root namespace (``clm_track_node``).
-
-    Returns
-    -------
-    (str, str)
-        ``('/clm_track_node', '/clm_track_node/set_parameters_atomically')``.
-
-    Raises
-    ------
-    ValueError
-        Empty or invalid name.
-    """
-    name = target_node.strip().rstrip("/")
-    if not name:
-        raise ValueError("target_node is empty: name the node to update, e.g. /clm_track_node")
-    if not name.startswith("/"):
-        name = "/" + name
-    service = f"{name}/set_parameters_atomically"
-    try:
-        validate_full_topic_name(service, is_service=True)
-    except NameValidationException as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ValueError(f"target_node = {target_node!r} is not a valid node name ({first})") from None
-    return name, service
-
-
-def _one_line(text: str) -> str:
-    return " ".join(text.split())
-
-
-def fit_message(result: CalibrationResult) -> str:
-    """One-line description of a fit: method, model, band, norm, values, misfit, warnings."""
-    vals = ", ".join(f"{p.name} = {p.value:.4g} {p.unit}".rstrip() for p in result.parameters)
-    lo, hi = result.band
-    text = (
-        f"{result.method} fit ({result.model}, {lo:g}-{hi:g} Hz, {result.norm} norm): {vals}; "
-        f"misfit {result.misfit:.3g}"
-    )
-    n = len(result.warnings)
-    if n:
-        text += f"; {n} warning(s), first: {_one_line(result.warnings[0])}"
-    else:
-        text += "; no warnings"
-    return text
+    def cancel_requested(self) -> bool:
+        return self.goal is not None and self.goal.is_cancel_requested
 
 
 class CalibrationNode(Node):
-    """Node offering ``~/calibrate`` (``clm_msgs/srv/Calibrate``); see the module docstring.
+    """Node offering the ``~/calibrate`` action and service; see the module docstring.
 
     Parameters
     ----------
     **kwargs
         Passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
+
+    Raises
+    ------
+    ValueError
+        ``default_method`` is not a method.
     """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        # parameters generated from settings (clm_ros.parameters); the method's choices are clm_core's METHODS
-        declare_settings(self, (DEFAULT_METHOD, "push_timeout"))
-        self._check_method(str(self.get_parameter("default_method").value))
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        declare_settings(self, (DEFAULT_METHOD, MAX_QUEUED, "push_timeout", "diagnostics_period"))
+        method = str(self.get_parameter("default_method").value)
+        DEFAULT_METHOD.check(method)  # the values at start (later changes are checked by declare_settings)
 
-        self._busy = threading.Lock()
-        self._running: tuple[str, str, float] | None = None  # (method, bag, start time)
-        self._cancel = threading.Event()
-        self._push_clients: dict[str, Client] = {}
-        self._push_clients_lock = threading.Lock()
-        self._service_group = ReentrantCallbackGroup()
-        self._client_group = MutuallyExclusiveCallbackGroup()
-        self.service = self.create_service(
-            Calibrate, SERVICE_NAME, self.handle_calibrate, callback_group=self._service_group
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._queue: deque[_Job] = deque()
+        self._running: _Job | None = None
+        self._goals: dict[bytes, _Job] = {}
+        self._counts: Counter[str] = Counter()
+        self._last: dict[str, str] = {}
+        self._n_requests = 0
+        self._pusher = ParameterPusher(self, self._stop)
+        self._inbox: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
+
+        # callbacks run in a single-threaded executor and never block: the fit and the push run in
+        # self._worker; a goal or call awaits its job's future, which the worker completes and wakes
+        self._wake = self.create_guard_condition(lambda: None)
+        self.action_server = ActionServer(
+            self, CalibrateAction, ACTION_NAME, self._execute_goal,
+            goal_callback=self._on_goal, handle_accepted_callback=self._on_accepted,
+            cancel_callback=self._on_cancel,
         )
-        self.get_logger().info(f"ready: {self.service.service_name} (methods {', '.join(METHODS)})")
+        self.service = self.create_service(Calibrate, SERVICE_NAME, self._serve)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._diag_timer = self.create_timer(float(self.get_parameter("diagnostics_period").value),
+                                             self.publish_diagnostics)
+        self._queue_timer = self.create_timer(QUEUE_POLL_S, self._pump)
+        self._worker = threading.Thread(target=self._work, name="calibration", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"ready: action and service {self.service.service_name} (methods {', '.join(METHODS)}, "
+            f"up to {self._max_queued()} queued)"
+        )
 
-    # ------------------------------------------------------------------ parameters
+    # ------------------------------------------------------------------ admission and queue
 
-    @staticmethod
-    def _check_method(method: str) -> None:
-        if method not in METHODS:
-            raise ValueError(f"default_method = {method!r}: must be one of {', '.join(METHODS)}")
+    def _max_queued(self) -> int:
+        return int(self.get_parameter("max_queued").value)
 
-    def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
-        for p in params:
-            if p.name == "default_method":
-                try:
-                    self._check_method(str(p.value))
-                except ValueError as exc:
-                    return SetParametersResult(successful=False, reason=str(exc))
-        return SetParametersResult(successful=True)
+    def _default_method(self) -> str:
+        return str(self.get_parameter("default_method").value)
 
-    # ------------------------------------------------------------------ service
+    def _busy_reason(self) -> str:
+        """Why a new calibration cannot wait now ('' if it can); call with the lock held."""
+        if self._stop.is_set():
+            return "the node is shutting down"
+        if self._running is not None and len(self._queue) >= self._max_queued():
+            run = self._running
+            return (f"a calibration is running ({run.request.method} of {run.request.bag!r}, {run.stage}) and "
+                    f"{len(self._queue)} wait (max_queued = {self._max_queued()})")
+        return ""
 
-    def handle_calibrate(self, request: Calibrate.Request, response: Calibrate.Response) -> Calibrate.Response:
-        """Serve one ``Calibrate`` request (runs in an executor thread; never raises).
+    def _on_goal(self, goal: CalibrateAction.Goal) -> GoalResponse:
+        with self._lock:
+            reason = self._busy_reason()
+            if reason:
+                self._counts["rejected"] += 1
+        if reason:
+            self.get_logger().warning(f"goal rejected ({goal.method or self._default_method()} of "
+                                      f"{goal.bag_path!r}): {reason}")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
 
-        Parameters
-        ----------
-        request : clm_msgs.srv.Calibrate.Request
-        response : clm_msgs.srv.Calibrate.Response
+    def _on_accepted(self, goal: ServerGoalHandle) -> None:
+        label = bytes(goal.goal_id.uuid).hex()[:8]
+        job = _Job(request_from_goal(goal.request, self._default_method()), goal, label)
+        with self._lock:
+            self._goals[bytes(goal.goal_id.uuid)] = job
+            self._counts["accepted"] += 1
+            self._queue.append(job)
+            ahead = len(self._queue) - 1 + (self._running is not None)
+        if ahead:
+            self._feedback(job, "queued", 0.0, f"queued: {ahead} calibration(s) ahead")
+        self._pump()
 
-        Returns
-        -------
-        clm_msgs.srv.Calibrate.Response
-            Filled in; ``success = false`` with a one-line ``message`` on any error.
-        """
-        method = request.method.strip() or str(self.get_parameter("default_method").value)
-        bag = request.bag_path.strip()
-        if not self._busy.acquire(blocking=False):
-            running = self._running
-            what = (
-                f"{running[0]} of {running[1]!r}, for {time.monotonic() - running[2]:.1f} s" if running else "starting"
-            )
-            return self._fail(
-                response,
-                f"busy: another calibration is running ({what}); one at a time, try again when it has finished",
-                log=False,
-            )
+    def _on_cancel(self, goal: ServerGoalHandle) -> CancelResponse:
+        job = self._goals.get(bytes(goal.goal_id.uuid))
+        if job is None or job.done.done():
+            return CancelResponse.REJECT
+        self.get_logger().info(f"goal {job.label}: cancel requested ({job.stage})")
+        return CancelResponse.ACCEPT
+
+    def _pump(self) -> None:
+        """Start the next calibration if none runs; drop queued goals whose cancel was accepted."""
+        start: list[_Job] = []
+        with self._lock:
+            for job in [j for j in self._queue if j.cancel_requested()]:
+                self._queue.remove(job)
+                job.state = "dropped"
+                self._complete(job, failed(CANCELED, "canceled while queued (never started)", job.request))
+                start.append(job)
+            if self._running is None and self._queue and not self._stop.is_set():
+                job = self._queue.popleft()
+                job.state = "running"
+                job.started = time.monotonic()
+                self._running = job
+                start.append(job)
+        for job in start:
+            if job.goal is not None:
+                job.goal.execute()  # -> EXECUTING (or stays CANCELING); the action server calls _execute_goal
+            if job.state == "running":
+                self._inbox.put(job)
+
+    def _complete(self, job: _Job, outcome: CalibrationOutcome) -> None:
+        """Give a job its outcome (once) and wake the executor so the waiting goal or call concludes."""
+        if not job.done.done():
+            job.done.set_result(outcome)
+        self._wake.trigger()
+
+    # ------------------------------------------------------------------ action and service
+
+    async def _execute_goal(self, goal: ServerGoalHandle) -> CalibrateAction.Result:
+        job = self._goals.get(bytes(goal.goal_id.uuid))
+        if job is None:  # not expected: every accepted goal is registered first
+            goal.abort()
+            return CalibrateAction.Result(success=False, message="internal error: unknown goal")
+        outcome: CalibrationOutcome = await job.done
         try:
-            self._running = (method, bag, time.monotonic())
-            return self._calibrate_and_push(request, response, method, bag)
-        except Exception as exc:  # a request must always get an answer
+            result = action_result(outcome, CalibrateAction.Result)
+        except Exception as exc:  # the goal must end with a result that says what happened
             self.get_logger().error(traceback.format_exc())
-            return self._fail(response, f"internal error of the calibration node: {type(exc).__name__}: {exc}")
-        finally:
-            self._running = None
-            self._busy.release()
+            outcome = failed(ABORTED, f"internal error of the calibration node: {type(exc).__name__}: {exc}",
+                             job.request)
+            result = action_result(outcome, CalibrateAction.Result)
+        self._conclude(job, outcome)
+        return result
 
-    def _fail(self, response: Calibrate.Response, message: str, log: bool = True,
-              extra: Mapping[str, Any] | None = None) -> Calibrate.Response:
-        message = _one_line(message)
-        if log:
-            self.get_logger().warning(message)
-        response.success = False
-        response.message = message
-        response.metrics_json = dumps_json({"error": message, **(extra or {})}, indent=None)
-        return response
+    async def _serve(self, request: Calibrate.Request, response: Calibrate.Response) -> Calibrate.Response:
+        """The ``Calibrate`` service: the same queue and code path as a goal, answered when done."""
+        with self._lock:
+            self._n_requests += 1
+            label = f"request-{self._n_requests}"
+            reason = self._busy_reason()
+            if reason:
+                self._counts["rejected"] += 1
+            else:
+                job = _Job(request_from_service(request, self._default_method()), None, label)
+                self._counts["accepted"] += 1
+                self._queue.append(job)
+        if reason:
+            self.get_logger().warning(f"{label} refused: busy: {reason}")
+            return service_response(failed(ABORTED, f"busy: {reason}; try again later"), response)
+        self._pump()
+        outcome: CalibrationOutcome = await job.done
+        self._conclude(job, outcome)
+        return service_response(outcome, response)
 
-    def _calibrate_and_push(self, request: Calibrate.Request, response: Calibrate.Response,
-                            method: str, bag: str) -> Calibrate.Response:
-        ctx = {"method": method, "bag": bag}
-        if not bag:
-            return self._fail(response, "bag_path is empty: give the bag directory or .mcap/.db3 file", extra=ctx)
-        if method not in METHODS:
-            return self._fail(response, f"method = {method!r}: must be one of {', '.join(METHODS)}", extra=ctx)
-        path = Path(bag).expanduser()
+    def _conclude(self, job: _Job, outcome: CalibrationOutcome) -> None:
+        """End a job (executor thread): the goal's terminal state, counters, the next job, diagnostics."""
+        goal = job.goal
+        if goal is not None:
+            try:
+                if outcome.status == SUCCEEDED:
+                    goal.succeed()
+                elif outcome.status == CANCELED and goal.is_cancel_requested:
+                    goal.canceled()
+                else:
+                    goal.abort()
+            except Exception as exc:  # an invalid transition must not take the node down
+                self.get_logger().error(f"goal {job.label}: cannot set its final state: {exc}")
+        key = {SUCCEEDED: "succeeded", CANCELED: "canceled"}.get(outcome.status, "failed")
+        with self._lock:
+            self._counts[key] += 1
+            if goal is not None:
+                self._goals.pop(bytes(goal.goal_id.uuid), None)
+            if self._running is job:
+                self._running = None
+            self._last["outcome"] = f"{outcome.status}: {outcome.message}"
+            self._last["goal"] = job.label
+            if outcome.result is not None:
+                r = outcome.result
+                self._last.update(misfit=f"{r.misfit:.6g}", duration_s=f"{r.elapsed_s:.3f}", method=r.method,
+                                  bag=r.bag)
+            if outcome.push is not None:
+                p = outcome.push
+                self._last.update(push_target=p.target, push="accepted" if p.accepted else f"failed: {p.reason}")
+        # (one call site per severity: rclpy refuses a severity change at the same call site)
+        if outcome.status == ABORTED:
+            self.get_logger().warning(f"{job.label} {outcome.status}: {outcome.message}")
+        else:
+            self.get_logger().info(f"{job.label} {outcome.status}: {outcome.message}")
+        self._pump()
+        self.publish_diagnostics()
+
+    # ------------------------------------------------------------------ the worker
+
+    def _feedback(self, job: _Job, stage: str, fraction: float, message: str = "") -> None:
+        fraction = min(1.0, max(job.fraction, fraction))
+        changed = stage != job.stage
+        job.stage, job.fraction = stage, fraction
+        if changed and job.state == "running":
+            self.get_logger().info(f"{job.label}: {stage} ({100 * fraction:.0f} %)")
+        if job.goal is not None:
+            elapsed = time.monotonic() - job.started if job.started else 0.0
+            job.goal.publish_feedback(CalibrateAction.Feedback(
+                stage=stage, fraction=fraction, message=message or f"{stage} ({100 * fraction:.0f} %)",
+                elapsed=elapsed))
+
+    def _work(self) -> None:
+        """Worker thread: run the jobs handed over by :meth:`_pump`, one at a time."""
+        while True:
+            job = self._inbox.get()
+            if job is None:
+                return
+            try:
+                outcome = self._run(job)
+            except BaseException as exc:  # the worker must survive anything and answer
+                self.get_logger().error(traceback.format_exc())
+                outcome = failed(ABORTED, f"internal error of the calibration node: {type(exc).__name__}: {exc}",
+                                 job.request)
+            self._complete(job, outcome)
+
+    def _check_stop(self, job: _Job) -> None:
+        if self._stop.is_set():
+            raise CalibrationStopped("node shutting down")
+        if job.cancel_requested():
+            raise CalibrationStopped("canceled")
+
+    def _run(self, job: _Job) -> CalibrationOutcome:
+        """One calibration (worker thread): checks, the fit with feedback, the push. Never raises."""
+        req = job.request
+        if req.error:
+            return failed(ABORTED, req.error, req)
+        if not req.bag:
+            return failed(ABORTED, "bag_path is empty: give the bag directory or .mcap/.db3 file", req)
+        if req.method not in METHODS:
+            return failed(ABORTED, f"method = {req.method!r}: must be one of {', '.join(METHODS)}", req)
+        path = Path(req.bag).expanduser()
         if not path.exists():
-            return self._fail(response, f"bag {bag!r} does not exist (as seen by the node, cwd {Path.cwd()})",
-                              extra=ctx)
-        self.get_logger().info(f"calibrating: {method} on {bag!r}")
-        stage = [""]
+            return failed(ABORTED, f"bag {req.bag!r} does not exist (as seen by the node, cwd {Path.cwd()})", req)
+        share = FIT_SHARE_WITH_PUSH if req.push else 1.0
+        self.get_logger().info(f"{job.label}: calibrating: {req.method} on {req.bag!r}")
+        self.publish_diagnostics()
 
-        def progress(name: str, frac: float) -> None:
-            if self._cancel.is_set():
-                raise CalibrationCancelled("node shutting down")
-            if name != stage[0]:
-                stage[0] = name
-                self.get_logger().info(f"  {name} ({100 * frac:.0f} %)")
+        def progress(stage: str, frac: float) -> None:
+            self._check_stop(job)
+            self._feedback(job, stage, share * frac)
 
         try:
-            result = calibrate(path, method, request.options_yaml, progress=progress)
-        except CalibrationCancelled:
-            return self._fail(response, "calibration cancelled: the node is shutting down", log=False, extra=ctx)
+            result = calibrate(path, req.method, req.options, progress=progress, allow_partial=req.allow_partial)
+        except CalibrationStopped as why:
+            if str(why) == "canceled":
+                return failed(CANCELED, f"canceled during '{job.stage}' ({100 * job.fraction:.0f} %)", req)
+            return failed(ABORTED, f"node shutting down: stopped during '{job.stage}'", req)
         except BagError as exc:
-            return self._fail(response, f"bag refused: {exc}", extra=ctx)
+            return failed(ABORTED, f"bag refused: {exc}", req)
         except ClmError as exc:  # CalibrationError (options, channel map, band), ParameterError
-            return self._fail(response, f"calibration failed: {exc}", extra=ctx)
+            return failed(ABORTED, f"calibration failed: {exc}", req)
         except Exception as exc:  # the node must survive anything a bag can trigger
             self.get_logger().error(traceback.format_exc())
-            return self._fail(
-                response,
-                f"calibration failed with an unexpected {type(exc).__name__}: {exc} (traceback in the node's log)",
-                extra=ctx,
-            )
-
-        response.parameters_yaml = result.parameters_yaml()
-        metrics = result.summary()
+            return failed(ABORTED, f"calibration failed with an unexpected {type(exc).__name__}: {exc} "
+                          "(traceback in the node's log)", req)
         fit_text = fit_message(result)
-        success = True
-        message = fit_text
-        if request.push_to_node:
-            outcome = self._push_result(result, request.target_node)
-            metrics["push"] = outcome.to_dict()
-            if outcome.accepted:
-                message = f"{fit_text}; pushed {len(outcome.values)} parameter(s) to {outcome.target}"
-            else:
-                success = False
-                message = (
-                    f"fit succeeded but the push to {outcome.target or repr(request.target_node)} failed: "
-                    f"{outcome.reason} ({fit_text}; fitted parameters in parameters_yaml)"
-                )
-        else:
-            metrics["push"] = {"requested": False}
-        response.metrics_json = dumps_json(metrics, indent=1)
-        response.success = success
-        response.message = _one_line(message)
-        log = self.get_logger().info if success else self.get_logger().warning
-        log(response.message)
-        return response
+        if not req.push:
+            return CalibrationOutcome(SUCCEEDED, one_line(fit_text), result, None, req.context())
+        if job.cancel_requested() or self._stop.is_set():
+            canceled = job.cancel_requested()
+            reason = "canceled" if canceled else "node shutting down"
+            return CalibrationOutcome(CANCELED if canceled else ABORTED,
+                                      one_line(f"{reason} after the fit, before the push: nothing pushed ({fit_text})"),
+                                      result, None, req.context())
+        self._feedback(job, "pushing", share, f"pushing the fitted parameters to {req.target}")
+        push = self._push(result, req.target)
+        if push.accepted:
+            self._feedback(job, "done", 1.0, f"pushed {len(push.values)} parameter(s) to {push.target}")
+            msg = f"{fit_text}; pushed {len(push.values)} parameter(s) to {push.target}"
+            return CalibrationOutcome(SUCCEEDED, one_line(msg), result, push, req.context())
+        msg = (f"fit succeeded but the push to {push.target or repr(req.target)} failed: {push.reason} "
+               f"({fit_text}; fitted parameters in the result)")
+        return CalibrationOutcome(ABORTED, one_line(msg), result, push, req.context())
 
-    # ------------------------------------------------------------------ push
-
-    def _push_result(self, result: CalibrationResult, target_node: str) -> PushOutcome:
+    def _push(self, result: Any, target: str) -> PushOutcome:
         try:
             values = push_values(result)
         except CalibrationError as exc:
-            return PushOutcome(target=target_node, service="", accepted=False, reason=str(exc))
-        try:
-            return self.push_parameters(values, target_node)
-        except Exception as exc:  # report it, keep the fit's answer
-            self.get_logger().error(traceback.format_exc())
-            return PushOutcome(target=target_node, service="", accepted=False, values=values,
-                               reason=f"push failed with an unexpected {type(exc).__name__}: {exc}")
+            return PushOutcome(target=target, service="", accepted=False, reason=str(exc))
+        return self._pusher.push(values, target, float(self.get_parameter("push_timeout").value))
 
-    def _client(self, service: str) -> Client:
-        with self._push_clients_lock:
-            cli = self._push_clients.get(service)
-            if cli is None:
-                cli = self.create_client(SetParametersAtomically, service, callback_group=self._client_group)
-                self._push_clients[service] = cli
-            return cli
-
-    def push_parameters(self, values: Mapping[str, float], target_node: str,
-                        timeout: float | None = None) -> PushOutcome:
-        """Set DOUBLE parameters on a running node, all or none.
-
-        Calls ``<target_node>/set_parameters_atomically`` (the target's
-        parameter callback sees the whole set at once, so a set the track
-        node finds invalid or unstable is refused as a whole and nothing
-        changes). Must not be called from a callback of a single-threaded
-        executor (it waits for the answer, which another executor thread
-        delivers).
+    def push_parameters(self, values: dict[str, float], target_node: str, timeout: float | None = None) -> PushOutcome:
+        """Set DOUBLE parameters on a running node, all or none (:meth:`ParameterPusher.push`).
 
         Parameters
         ----------
         values : mapping
             ``{'soil.kf': 7.2e7, ...}`` [SI].
         target_node : str
-            Target node name (``/clm_track_node``; a relative name is taken
-            from the root namespace).
+            Target node name.
         timeout : float, optional
-            Seconds to wait for the service and its answer; default the
-            ``push_timeout`` parameter.
-
-        Returns
-        -------
-        PushOutcome
-            ``accepted`` and, if not, the target's reason (or why it could
-            not be reached).
+            Default the ``push_timeout`` parameter [s].
         """
-        t0 = time.monotonic()
         budget = float(self.get_parameter("push_timeout").value) if timeout is None else float(timeout)
+        return self._pusher.push(values, target_node, budget)
+
+    # ------------------------------------------------------------------ diagnostics
+
+    def diagnostics_values(self) -> dict[str, str]:
+        """The key-value pairs of the node's ``/diagnostics`` status."""
+        with self._lock:
+            run = self._running
+            c = self._counts
+            values = {
+                "state": "running" if run is not None else "idle",
+                "queued": str(len(self._queue)),
+                **{f"goals_{k}": str(c[k]) for k in ("accepted", "rejected", "succeeded", "failed", "canceled")},
+            }
+            if run is not None:
+                values.update(current_goal=run.label, current_method=run.request.method,
+                              current_bag=run.request.bag, current_stage=run.stage,
+                              current_fraction=f"{run.fraction:.3f}",
+                              current_elapsed_s=f"{time.monotonic() - run.started:.3f}")
+            values.update({f"last_{k}": v for k, v in self._last.items()})
+        return values
+
+    def publish_diagnostics(self) -> None:
+        """Publish the node's status on ``/diagnostics`` (timer, and at every start and end of a calibration)."""
+        values = self.diagnostics_values()
+        level, message = DiagnosticStatus.OK, values["state"]
+        if values["state"] == "running":
+            message = (f"running {values['current_method']} on {values['current_bag']!r}: "
+                       f"{values['current_stage']} ({100 * float(values['current_fraction']):.0f} %)")
+        last = values.get("last_outcome", "")
+        if last.startswith(("aborted", "failed")) or values.get("last_push", "").startswith("failed"):
+            level = DiagnosticStatus.WARN
+            if values["state"] == "idle":
+                message = f"idle; last calibration {last[:200]}"
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: calibration", message=message,
+                                  hardware_id="clm_core",
+                                  values=[KeyValue(key=k, value=v[:500]) for k, v in values.items()])
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
         try:
-            target, service = target_service(target_node)
-        except ValueError as exc:
-            return PushOutcome(target=target_node, service="", accepted=False, reason=str(exc), values=dict(values))
-        bad = [k for k, v in values.items() if not math.isfinite(float(v))]
-        if not values or bad:
-            reason = "nothing to push" if not values else f"non-finite value(s) for {', '.join(bad)}; nothing pushed"
-            return PushOutcome(target=target, service=service, accepted=False, reason=reason, values=dict(values))
-
-        def outcome(accepted: bool, reason: str) -> PushOutcome:
-            return PushOutcome(target=target, service=service, accepted=accepted, reason=reason,
-                               values=dict(values), elapsed_s=time.monotonic() - t0)
-
-        cli = self._client(service)
-        if not cli.wait_for_service(timeout_sec=budget):
-            return outcome(False, f"no parameter service {service} within {budget:g} s (is {target} running?)")
-        future = cli.call_async(SetParametersAtomically.Request(parameters=parameter_messages(values)))
-        deadline = t0 + budget
-        while not future.done():
-            if self._cancel.is_set():
-                future.cancel()
-                return outcome(False, "node shutting down")
-            if time.monotonic() > deadline:
-                future.cancel()
-                cli.remove_pending_request(future)
-                return outcome(False, f"{service} did not answer within {budget:g} s")
-            time.sleep(0.005)
-        error = future.exception()
-        if error is not None:
-            return outcome(False, f"{service} call failed: {error}")
-        res = future.result()
-        if res is None:
-            return outcome(False, f"{service} returned no result")
-        if not res.result.successful:
-            reason = _one_line(res.result.reason) or "refused without a reason"
-            self.get_logger().warning(f"push to {target} refused: {reason}")
-            return outcome(False, f"{target} refused the parameters: {reason}")
-        self.get_logger().info(f"pushed {', '.join(f'{k} = {v:.6g}' for k, v in values.items())} to {target}")
-        return outcome(True, "")
+            self._pub_diag.publish(arr)
+        except Exception as exc:  # context shutting down: diagnostics are best effort
+            self.get_logger().debug(f"diagnostics not published: {exc}")
 
     # ------------------------------------------------------------------ shutdown
 
-    def cancel(self) -> None:
-        """Ask a running fit or push to stop (at its next progress report); used at shutdown."""
-        self._cancel.set()
+    def begin_shutdown(self) -> None:
+        """Accept nothing more, abort what waits, ask the running fit to stop at its next progress report."""
+        self._stop.set()
+        with self._lock:
+            waiting = list(self._queue)
+            self._queue.clear()
+        for job in waiting:
+            job.state = "dropped"
+            self._complete(job, failed(ABORTED, "node shutting down before the calibration started", job.request))
+            if job.goal is not None:
+                job.goal.execute()
 
-    def wait_idle(self, timeout: float) -> bool:
-        """Wait until no calibration runs (at most ``timeout`` s); True if idle."""
-        if self._busy.acquire(timeout=max(0.0, timeout)):
-            self._busy.release()
-            return True
-        return False
+    def idle(self) -> bool:
+        """True when no calibration runs or waits."""
+        with self._lock:
+            return self._running is None and not self._queue
+
+    def abandon(self) -> None:
+        """Answer a fit that did not stop in time (its daemon thread is left to the process exit); stop the worker."""
+        with self._lock:
+            run = self._running
+        if run is not None:
+            self._complete(run, failed(ABORTED, f"node shutting down: the fit did not stop within "
+                                       f"{SHUTDOWN_GRACE:g} s ('{run.stage}')", run.request))
+        self._inbox.put(None)
+
+    def fit_abandoned(self) -> bool:
+        """True if a fit was abandoned at shutdown and its thread still runs."""
+        return self._worker.is_alive() and self._stop.is_set()
 
     def destroy_node(self) -> None:
-        """Cancel a running fit, then destroy the node."""
-        self.cancel()
+        """Stop the worker, then destroy the node."""
+        self._stop.set()
+        self._inbox.put(None)
+        self.action_server.destroy()
         super().destroy_node()
 
 
+def _spin_until(executor: SingleThreadedExecutor, done: Any, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+
+
 def main(args: list[str] | None = None) -> int:
-    """Console entry point ``calibration_node``: init, spin (multi-threaded), shut down.
+    """Console entry point ``calibration_node``: init, spin until SIGINT/SIGTERM, shut down cleanly.
 
     Parameters
     ----------
@@ -524,31 +593,59 @@ def main(args: list[str] | None = None) -> int:
     Returns
     -------
     int
-        Exit code: 0, or 2 for an invalid parameter at start (e.g. ``default_method``).
+        0 (also after SIGINT or SIGTERM, within 2 s even mid-fit), or 2 for
+        an invalid parameter at start (e.g. ``default_method``). After a
+        signal that found a fit in a stage longer than
+        :data:`SHUTDOWN_GRACE`, the process ends here with ``os._exit(0)``
+        once ROS is shut down (the fit's thread cannot be interrupted).
     """
-    rclpy.init(args=args)
+    signals: list[int] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        signals.append(signum)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node: CalibrationNode | None = None
-    executor: MultiThreadedExecutor | None = None
+    executor: SingleThreadedExecutor | None = None
     try:
         try:
             node = CalibrationNode()
-        except (ValueError, InvalidParameterValueException) as exc:  # bad default_method, value out of range
-            print(f"{NODE_NAME}: {_one_line(str(exc))}", file=sys.stderr)
+        except (ValueError, ClmError, InvalidParameterValueException) as exc:  # bad default_method, range
+            print(f"{NODE_NAME}: {one_line(str(exc))}", file=sys.stderr)
             return 2
-        executor = MultiThreadedExecutor(num_threads=4)
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        while not signals and rclpy.ok():
+            try:
+                executor.spin_once(timeout_sec=0.1)
+            except Exception:  # a callback's error: log it, keep serving
+                node.get_logger().error(traceback.format_exc())
+        if signals:
+            t_signal = time.monotonic()
+            name = signal.Signals(signals[0]).name
+            node.get_logger().info(f"{name}: shutting down")
+            node.begin_shutdown()
+            busy = not node.idle()
+            _spin_until(executor, lambda: node.idle() or len(signals) > 1, SHUTDOWN_GRACE)
+            node.abandon()
+            if busy:  # let the results of what was running or waiting reach the clients
+                _spin_until(executor, lambda: len(signals) > 1, FLUSH_S)
+            node.get_logger().info(f"{name}: node stopped {time.monotonic() - t_signal:.3f} s after the signal")
     finally:
-        if node is not None:
-            node.cancel()
-            node.wait_idle(10.0)
         if executor is not None:
-            executor.shutdown(timeout_sec=5.0)
+            executor.shutdown(timeout_sec=0.5)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if node is not None and node.fit_abandoned():
+        # the fit thread cannot be interrupted and would slow the interpreter's teardown down (it holds the GIL
+        # for much of its work): everything ROS is shut down, so end the process here
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
     return 0
 
 
