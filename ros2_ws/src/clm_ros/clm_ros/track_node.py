@@ -644,8 +644,8 @@ class TrackNode(LifecycleNode):
         self._accepting = False
         super().destroy_node()
 
-    def stats(self) -> dict[str, Any]:
-        """Counters (for tests and the launcher)."""
+    def counts(self) -> dict[str, Any]:
+        """Every counter of the node's life, as in ``/diagnostics`` (for tests and the launcher)."""
         return self.counters.values(self.stats)
 
 
