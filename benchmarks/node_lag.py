@@ -61,7 +61,8 @@ for path in (CLM_ROS_SRC, REPO / "benchmarks"):
         sys.path.insert(0, str(path))
 
 from clm_ros.processes import hold_domain_id, ros_args, ros_env, stop_processes  # noqa: E402
-from online_path import kernel_per_call, process_per_frame, stream  # noqa: E402
+from online_path import KernelCall, stream  # noqa: E402
+from online_path import side_by_side as tight_loops  # noqa: E402
 
 from clm_core.io.messages import encode_wheel_loads  # noqa: E402
 from clm_core.io.timebase import NS  # noqa: E402
@@ -201,43 +202,36 @@ def lag_figures(stamps: list[int], recv: list[int]) -> dict[str, float]:
 
 
 def side_by_side(sleepers: int, rate: float, frames: int = 1500) -> dict[str, float]:
-    """CPU time per message [us] in this process for the same steps: the kernel in a tight loop
-    (:func:`online_path.kernel_per_call`), the model alone in a tight loop, and, at the node's cadence (one
-    message per period, idle in between, as the node runs), the model and its compiled frame kernel
-    (``run_frames``, timed around its calls)."""
+    """CPU time per message [us] in this process for the same steps as the node's: the bare kernel
+    (:class:`online_path.KernelCall`, ``run_steps``) and the model alone (``process``), in tight loops
+    (:func:`online_path.side_by_side`) and at the node's cadence (one call each per message period, idle in
+    between, as the node runs: the caches and the CPU go cold between two messages)."""
     from clm_core.online import OnlineTrackModel
-    from clm_core.solver import _frame_kernel as fk
 
     params = load_model("mevergnies", "mevergnies", "clm")
     steps = round(1.0 / (rate * TRACK["dt"]))
-    kc, _ = kernel_per_call(params, sleepers, steps, 1000)
-    pc, _ = process_per_frame(params, sleepers, stream(frames, rate))
-    inner, spent = fk.run_frames, [0.0]
-
-    def timed(*args: Any) -> Any:
-        c = time.thread_time()
-        try:
-            return inner(*args)
-        finally:
-            spent[0] += time.thread_time() - c
-
-    model = OnlineTrackModel(params, TRACK["dt"], sleepers)
     todo = stream(frames, rate)
+    kc, _, pc, _ = tight_loops(params, sleepers, steps, todo)
+    kernel = KernelCall(params, sleepers, steps)
+    model = OnlineTrackModel(params, TRACK["dt"], sleepers)
     model.process(todo[0])
-    fk.run_frames = timed  # benchmark instrumentation: the frame path looks the kernel up at each call
-    try:
-        total, next_t = 0.0, time.perf_counter()
-        for f in todo[1:]:
-            next_t += 1.0 / rate
-            c = time.thread_time()
-            model.process_batch([f])
-            total += time.thread_time() - c
+    k_cpu = m_cpu = 0.0
+    period = 1.0 / rate
+    next_t = time.perf_counter()
+    for f in todo[1:]:
+        for i in (0, 1):  # the kernel, then the model, half a period apart
+            next_t += period / 2
             time.sleep(max(next_t - time.perf_counter(), 0.0))
-    finally:
-        fk.run_frames = inner
+            c = time.thread_time()
+            if i == 0:
+                kernel(1)
+                k_cpu += time.thread_time() - c
+            else:
+                model.process_batch([f])
+                m_cpu += time.thread_time() - c
     n = len(todo) - 1
     return {"kernel_us": kc * 1e6, "model_us": pc * 1e6, "steps": float(steps),
-            "kernel_cadence_us": 1e6 * spent[0] / n, "model_cadence_us": 1e6 * total / n}
+            "kernel_cadence_us": 1e6 * k_cpu / n, "model_cadence_us": 1e6 * m_cpu / n}
 
 
 # ---------------------------------------------------------------------------------------------- cases
