@@ -262,6 +262,26 @@ def _numbers_rule(text: str) -> str:
     return ""
 
 
+def _indices_rule(text: str) -> str:
+    """Comma-separated whole numbers (empty: none), at most 256 of them."""
+    items = [s.strip() for s in text.split(",") if s.strip()]
+    try:
+        [int(s) for s in items]
+    except ValueError:
+        return "expected comma-separated whole numbers (global sleeper indices), or nothing"
+    return "" if len(items) <= 256 else "at most 256 sleepers"
+
+
+def _optional_numbers_rule(text: str) -> str:
+    """Comma-separated finite numbers, or nothing."""
+    return "" if not text.strip() else _numbers_rule(text)
+
+
+def number_list(text: str) -> list[float]:
+    """The numbers of a comma-separated setting value (``"1, 2.5"`` -> ``[1.0, 2.5]``; empty -> ``[]``)."""
+    return [float(s) for s in text.split(",") if s.strip()]
+
+
 def wavelength_band(text: str) -> tuple[float, float]:
     """Parse a ``wavelength_band`` value ``"LMIN,LMAX"`` [m] (checked)."""
     WAVELENGTH_BAND.check(text)
@@ -393,6 +413,30 @@ CLOSED_LOOP: Setting[bool] = Setting("closed_loop", bool, True, "-",
                                      "vehicle on the track node's rail deflection (false: on the quasi-static "
                                      "track compliance, no feedback)", read_only=True)
 
+# the track node (ROS): real time, diagnostics, live views
+LAG_BUDGET: Setting[float] = Setting(
+    "lag_budget", float, 5e-3, "s", "answer lag (wheel-load stamp to published answer, on the stamps' clock) above "
+    "which /diagnostics turns WARN", minimum=0.0, maximum=3600.0,
+)
+MAX_FEEDBACK_DELAY: Setting[float] = Setting(
+    "max_feedback_delay", float, 0.02, "s", "closed loop: an answer older than this is too late to be used as "
+    "feedback (the vehicle ignores and counts it; the track node's /diagnostics turn ERROR)", minimum=0.0,
+    maximum=10.0, read_only=True,
+)
+MONITORED_SLEEPERS: Setting[str] = Setting(
+    "monitored_sleepers", str, "", "-", "global indices of sleepers whose fields are published as fixed series "
+    "(topic monitored_sleepers; index i always the same sleeper, NaN while outside the window), comma-separated",
+    rule=_indices_rule, read_only=True,
+)
+MONITORED_POSITIONS: Setting[str] = Setting(
+    "monitored_positions", str, "", "m", "positions along the line whose nearest sleepers are monitored too "
+    "(after monitored_sleepers), comma-separated", rule=_optional_numbers_rule, read_only=True,
+)
+MARKERS_PERIOD: Setting[float] = Setting(
+    "markers_period", float, 0.1, "s", "period of the visualization_msgs/MarkerArray of the window (topic "
+    "track_markers; wall clock); 0: none", minimum=0.0, maximum=3600.0, read_only=True,
+)
+
 #: Every run setting by name.
 SETTINGS: Mapping[str, Setting[Any]] = {
     s.name: s
@@ -401,7 +445,7 @@ SETTINGS: Mapping[str, Setting[Any]] = {
         ACCEPT_NEW_WHEELS, INITIAL_STATE, MAX_WHEEL_FORCE, MAX_WHEEL_POSITION, MAX_WHEEL_SPEED, MAX_RESPONSE_FORCE,
         MAX_RESPONSE_DISPLACEMENT, RESYNC_CONFIRM, MAX_WHEELS, DURATION, OUTPUT_DT, STORAGE, START, SPEED, LOAD, AXLES,
         LOADS_FILE, VEHICLE, CARS, TRAIN, IRREGULARITY, SEED, WAVELENGTH_BAND, LEAD_IN, HERTZ, TRACK_ENGINE, RATE,
-        CLOSED_LOOP,
+        CLOSED_LOOP, LAG_BUDGET, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS, MARKERS_PERIOD,
     )
 }
 

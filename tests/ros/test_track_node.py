@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
 from clm_ros.conversions import rclpy_wheel_loads
-from driver import Driver
+from driver import Driver, status_dict
 
 from clm_core.io.timebase import NS
 from clm_core.online import OnlineTrackModel, Rejected, WheelFrame
@@ -64,7 +64,7 @@ def test_node_equals_offline_bit_for_bit(node_and_driver) -> None:  # type: igno
     assert len(drv.sleepers) == 400 and len(drv.wheels) == 400  # in = out
     offline, _ = _offline(stream)
     for got, ref in zip(drv.sleepers, offline):
-        assert got.header.stamp.sec * NS + got.header.stamp.nanosec == ref.stamp_ns
+        assert got.stamp_ns == ref.stamp_ns
         np.testing.assert_array_equal(np.asarray(got.soil_force), ref.soil_force)
         np.testing.assert_array_equal(np.asarray(got.rail_deflection), ref.rail_deflection)
         np.testing.assert_array_equal(np.asarray(got.sleeper_index), ref.sleeper_index)
@@ -112,13 +112,17 @@ def test_bad_input_rejected_counted_logged_once(node_and_driver) -> None:  # typ
     assert d["rejected.non_finite"] == "2" and d["rejected.tensile"] == "2"
     assert d["rejected.duplicate_id"] == "1" and d["rejected.unknown_id"] == "1"
     assert d["rejected.stamp_not_increasing"] == "1" and d["rejected.outside_window"] == "1"
-    assert d["accepted"] == "300" and d["rejected"] == "8" and d["_level"] == "1"  # WARN
+    assert d["accepted"] == "300" and d["rejected"] == "8" and d["received"] == "308"
+    # the period with the rejections said so (WARN)
+    warned = [status_dict(m) for _, m in drv.diagnostics if status_dict(m)["_level"] == "1"]
+    assert any("rejected" in w["_message"] for w in warned), [status_dict(m)["_message"] for _, m in drv.diagnostics]
     # a jump far ahead re-synchronises once confirmed by the frames after it (resync_confirm = 3; handled, answered)
     drv.send([rclpy_wheel_loads(good[-1][0] + 50 * NS + k * 10**6, [0, 1], [1000.0, 997.0], [85e3, 85e3])
               for k in range(3)], expected_answers=1)
     assert drv.latest_diagnostics()["resyncs"] == "2"
     proc.terminate()
     _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
     assert err.count("rejected (tensile") == 1 and err.count("rejected (non_finite") == 1, err
 
 
@@ -155,23 +159,15 @@ def test_parameter_file_and_runtime_updates(ros_python, ros_domain_id, tmp_path)
             ref = m.process(WheelFrame.of(t, [0, 1], pos, fz))
         np.testing.assert_array_equal(np.asarray(drv.sleepers[-1].soil_force), ref.soil_force)
         # runtime update through the parameter service: unstable refused with its reason, valid accepted
-        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-        from rcl_interfaces.srv import SetParameters
-
-        cli = drv.node.create_client(SetParameters, "/clm_track_node/set_parameters")
-        drv.wait_for(cli.service_is_ready, 20, "parameter service")
-
-        def set_param(name: str, value: float):  # type: ignore[no-untyped-def]
-            req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
-                type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
-            fut = cli.call_async(req)
-            drv.wait_for(fut.done, 20, "set_parameters answer")
-            return fut.result().results[0]
-
-        r = set_param("soil.dc", -400e3)
+        r = drv.set_double("soil.dc", -400e3)
         assert not r.successful and "not positive semi-definite" in r.reason
-        r = set_param("track.kb", 60e6)
+        r = drv.set_double("track.kb", 60e6)
         assert r.successful, r.reason
+        # the counters survive the update (monotonic for the node's life)
+        assert drv.latest_diagnostics()["accepted"] == "50"
+        drv.send(_msgs(_stream(20, t0_ns=20 * NS)), expected_answers=20)
+        d = drv.latest_diagnostics()
+        assert d["accepted"] == "70" and d["published"] == "70" and d["resyncs"] == "2"
     finally:
         drv.close()
     proc.terminate()

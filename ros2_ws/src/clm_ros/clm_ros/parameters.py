@@ -5,13 +5,18 @@
 ``ParameterDescriptor`` whose description gives the unit, range and default,
 ``FloatingPointRange``/``IntegerRange`` from the setting's bounds, and
 ``read_only`` for structural settings. The nodes' own operational parameters
-(QoS, frame id, timeouts) are settings of the same kind, declared below
+(frame id, timeouts) are settings of the same kind, declared below
 (:data:`NODE_SETTINGS`), so every parameter of every node is described one way.
+QoS is not among them: the nodes expose it through rclpy's standard QoS
+overrides (``qos_overrides./topic.publisher.reliability``, ...).
 
 Integers for real-valued parameters are accepted: ``-p track.kb:=60000000``
 on the command line and ``ros2 param set /clm_track_node track.kb 60000000``
 at run time (both give an INTEGER, which rclpy refuses for a DOUBLE
-parameter) are converted to DOUBLE before rclpy checks the type.
+parameter) are converted to DOUBLE before rclpy checks the type. Likewise a
+number or a list of numbers for a list-valued setting (a comma-separated
+string, e.g. ``monitored_sleepers``): ``-p monitored_sleepers:=[120,150]`` and
+``-p monitored_sleepers:=120`` become ``"120,150"`` and ``"120"``.
 """
 
 from __future__ import annotations
@@ -35,10 +40,6 @@ NODE_SETTINGS: dict[str, Setting[Any]] = {
     for s in (
         Setting("publish_every", int, 1, "-", "publish the response of every N-th accepted message (1: all)",
                 minimum=1, maximum=100000),
-        Setting("qos_depth", int, 0, "-", "keep-last depth of the data topics; 0: keep all (no message dropped)",
-                minimum=0, maximum=100000, read_only=True),
-        Setting("qos_reliability", str, "reliable", "-", "reliability of the data topics",
-                choices=("reliable", "best_effort"), read_only=True),
         Setting("frame_id", str, "track", "-", "frame id of the output headers"),
         Setting("diagnostics_period", float, 1.0, "s", "period of /diagnostics", minimum=0.01, maximum=3600.0,
                 read_only=True),
@@ -51,8 +52,6 @@ NODE_SETTINGS: dict[str, Setting[Any]] = {
                 read_only=True),
         Setting("ack_timeout", float, 10.0, "s", "after the run, wait this long for the track's answers",
                 minimum=0.0, maximum=3600.0, read_only=True),
-        Setting("max_feedback_delay", float, 0.02, "s", "closed loop: ignore track answers older than this "
-                "(counted)", minimum=0.0, maximum=10.0, read_only=True),
         Setting("push_timeout", float, 10.0, "s", "how long a push waits for the target node's parameter "
                 "service and its answer", minimum=0.1, maximum=600.0),
     )
@@ -106,17 +105,38 @@ def descriptor(s: Setting[Any], read_only: bool | None = None) -> ParameterDescr
 # --------------------------------------------------------------------------- declaration
 
 _FLOATS_ATTR = "_clm_float_parameters"
+_TEXTS_ATTR = "_clm_list_parameters"
 _SETTINGS_ATTR = "_clm_settings"
+
+
+_NUMBERS = (Parameter.Type.INTEGER, Parameter.Type.DOUBLE, Parameter.Type.INTEGER_ARRAY,
+            Parameter.Type.DOUBLE_ARRAY)
 
 
 def _as_double(p: Parameter) -> Parameter:
     return Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
 
 
+def _as_text(p: Parameter) -> Parameter:
+    """A number or a list of numbers as the comma-separated string of a list-valued setting."""
+    values = p.value if p.type_ in (Parameter.Type.INTEGER_ARRAY, Parameter.Type.DOUBLE_ARRAY) else [p.value]
+    return Parameter(p.name, Parameter.Type.STRING, ",".join(str(v) for v in values))
+
+
+def _converted(p: Parameter, floats: set[str], texts: set[str]) -> Parameter:
+    if p.name in floats and p.type_ == Parameter.Type.INTEGER:
+        return _as_double(p)
+    if p.name in texts and p.type_ in _NUMBERS:
+        return _as_text(p)
+    return p
+
+
 def _pre_set(node: Node, params: list[Parameter]) -> list[Parameter]:
-    """INTEGER values of real-valued parameters become DOUBLE (before rclpy's type check)."""
+    """INTEGER values of real-valued parameters become DOUBLE, numbers of list-valued ones STRING
+    (before rclpy's type check)."""
     floats: set[str] = getattr(node, _FLOATS_ATTR)
-    return [_as_double(p) if p.name in floats and p.type_ == Parameter.Type.INTEGER else p for p in params]
+    texts: set[str] = getattr(node, _TEXTS_ATTR)
+    return [_converted(p, floats, texts) for p in params]
 
 
 def _validate(node: Node, params: list[Parameter]) -> SetParametersResult:
@@ -158,9 +178,11 @@ def declare_settings(
     """
     if not hasattr(node, _FLOATS_ATTR):
         setattr(node, _FLOATS_ATTR, set())
+        setattr(node, _TEXTS_ATTR, set())
         setattr(node, _SETTINGS_ATTR, {})
         node.add_pre_set_parameters_callback(lambda params: _pre_set(node, params))
     floats: set[str] = getattr(node, _FLOATS_ATTR)
+    texts: set[str] = getattr(node, _TEXTS_ATTR)
     known: dict[str, Setting[Any]] = getattr(node, _SETTINGS_ATTR)
     # rclpy keeps the command-line overrides in this dict (no public accessor); an integer given for a
     # real-valued parameter would be refused by the type check of declare_parameter
@@ -170,9 +192,11 @@ def declare_settings(
         s = lookup(item)
         if s.kind is float:
             floats.add(s.name)
-            o = overrides.get(s.name)
-            if o is not None and o.type_ == Parameter.Type.INTEGER:
-                overrides[s.name] = _as_double(o)
+        elif s.kind is str and s.rule is not None:  # list-valued settings are strings with a rule
+            texts.add(s.name)
+        o = overrides.get(s.name)
+        if o is not None:
+            overrides[s.name] = _converted(o, floats, texts)
         p = node.declare_parameter(s.name, s.to_ros(), descriptor(s, read_only))
         known[s.name] = s
         values[s.name] = p.value

@@ -1,19 +1,44 @@
-"""The track–soil node: wheel loads in, sleeper soil forces and rail deflections out.
+"""The track–soil node: wheel loads in, sleeper soil forces and rail deflections out, in real time.
 
-A lifecycle node (``rclpy.lifecycle``) wrapping :class:`clm_core.online.OnlineTrackModel`:
+A lifecycle node (``rclpy.lifecycle``, the semantics of ros2/demos
+``lifecycle_py``) wrapping :class:`clm_core.online.OnlineTrackModel`. It owns
+no physics: it decodes messages at its edge, calls the core and encodes the
+answers (``clm replay`` runs the same core offline: the outputs are
+identical by construction).
 
-- configure: read the parameters, build and validate the model (an invalid or
-  unstable set is refused with its reason and the node stays unconfigured);
-- activate: subscribe to ``wheel_loads`` and publish, for every accepted
-  message, a ``clm_msgs/SleeperResponse`` on ``sleeper_response`` and a
-  ``clm_msgs/WheelRailResponse`` on ``wheel_rail_response``, stamped with the
-  input's stamp (simulation time), plus ``/diagnostics`` every
-  ``diagnostics_period`` s.
+States and what the node does in each:
 
-With ``autostart`` (default true) it configures and activates itself; users
-with a lifecycle manager set ``autostart:=false``. The node owns no physics:
-it converts messages at its edge and calls the core (``clm replay`` runs the
-same core offline, so the outputs are identical by construction).
+- **unconfigured**: no model. Parameters can be set; an invalid or unstable
+  physics set is refused with its reason here too.
+- **configuring** (``configure``): build and validate the model, then warm it
+  up: every JIT compilation (numba, cached on disk) and factorisation happens
+  now, so the first second of traffic is like any other. Create the answer
+  publishers (lifecycle publishers) and the live views. An invalid set fails
+  the transition (back to unconfigured, the reason logged).
+- **inactive**: model ready, not subscribed.
+- **activating** (``activate``): enable the publishers, then subscribe to
+  ``wheel_loads``. **The subscription exists exactly while the node is
+  active**: a publisher's ``get_subscription_count()`` turning >= 1 means the
+  node is warmed up and answering (the signal the vehicle node waits for).
+- **active**: every message taken is decoded, validated and answered
+  (``sleeper_response`` and ``wheel_rail_response``, stamped with the input's
+  stamp), or rejected and counted.
+- **deactivating**: stop accepting; wheel loads still queued are taken and
+  discarded unprocessed (counted as ``not_accepted``: not accepted, so no
+  answer is owed), then the subscription is destroyed.
+- **cleaning up**: drop the model and the answer publishers.
+- **shutting down** -> **finalized**: as deactivate + clean up; the node never
+  answers again (its ``/diagnostics`` say ``finalized``).
+
+With ``autostart`` (default true) it configures and activates itself.
+
+The data path (one executor callback): take the message and everything
+else waiting in the subscription (drain), decode with the numpy CDR codec
+(:mod:`clm_core.io.messages`), integrate through all of them in one go
+(``process_batch``), encode both answers per accepted message and publish
+the serialized bytes, in order. A malformed message is a rejection
+(``malformed``), never an exception. ``/diagnostics`` are published by a
+thread of their own (:mod:`clm_ros.diagnostics`), on time during a backlog.
 
 Run: ``python -m clm_ros.track_node --ros-args -p soil:=haren -p dt:=1e-4`` (or
 ``ros2 run clm_ros track_node`` in a full ROS install).
@@ -21,86 +46,175 @@ Run: ``python -m clm_ros.track_node --ros-args -p soil:=haren -p dt:=1e-4`` (or
 
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import time
-from collections import deque
+import traceback
 from typing import Any
 
 import numpy as np
 import rclpy
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.experimental import EventsExecutor
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from visualization_msgs.msg import MarkerArray
 
 from clm_core.errors import ClmError
 from clm_core.io.errors import MessageError
-from clm_core.io.messages import frame_from_msg
+from clm_core.io.messages import encode_sleeper_response, encode_wheel_rail_response, frame_from_cdr
 from clm_core.io.timebase import NS
-from clm_core.online import InputPolicy, OnlineTrackModel, Reason, Rejected
-from clm_core.params import (
-    PARAMETER_DOCS,
-    SOIL_MODELS,
-    ModelParams,
-    load_model,
-    load_params_file,
-)
+from clm_core.online import InputPolicy, OnlineStats, OnlineTrackModel, Reason, Rejected, ResponseFrame, WheelFrame
+from clm_core.params import PARAMETER_DOCS, SOIL_MODELS, ModelParams, load_model, load_params_file
 from clm_core.settings import ONLINE_POLICY
-from clm_ros.conversions import rclpy_responses
+from clm_ros import qos
+from clm_ros.conversions import rclpy_header
+from clm_ros.diagnostics import (
+    ERROR,
+    OK,
+    STALE,
+    WARN,
+    Counters,
+    DiagnosticsThread,
+    LagMonitor,
+    bounded,
+    diagnostic_array,
+    lag_level,
+    lag_values,
+)
+from clm_ros.lifetime import StopSignals, publish_synchronously, spin_until_stopped
 from clm_ros.parameters import declare_model_parameters, declare_settings
+from clm_ros.track_views import MonitoredSleepers, monitored_indices, window_markers
 
 NODE_NAME = "clm_track_node"
 
+#: Frames processed in one go at most; between chunks the answers go out and a stop request is honoured.
+CHUNK = 500
 
-def qos_profile(depth: int, reliability: str) -> QoSProfile:
-    """QoS for the data topics: keep-all (``depth`` 0, the default: nothing is dropped, a slow
-    subscriber slows the publisher down) or keep-last ``depth``; reliable or best effort."""
-    rel = ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT
-    if depth <= 0:
-        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=rel)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel)
+#: Settings whose change rebuilds the model (besides the model parameters ``<section>.<name>``).
+_MODEL_SETTINGS = ("max_gap", "accept_new_wheels", *ONLINE_POLICY)
 
 
 class TrackNode(LifecycleNode):
-    """Lifecycle node running the streaming track–soil model on wheel-load messages."""
+    """Lifecycle node running the streaming track–soil model on wheel-load messages.
 
-    def __init__(self, **kwargs: Any) -> None:
+    Parameters
+    ----------
+    stop : StopSignals, optional
+        Stop requests (signals) checked between chunks of a long backlog.
+    **kwargs
+        Passed to ``rclpy.lifecycle.Node``.
+    """
+
+    def __init__(self, stop: StopSignals | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         # parameters generated from the run-settings schema (clm_core.settings, clm_ros.parameters)
         declare_settings(self, ("track", "soil", "model", "params_file", "dt", "n_sleepers", "elements_per_bay",
                                 "lead_sleepers", "max_gap", "accept_new_wheels", *ONLINE_POLICY))
-        declare_settings(self, ("publish_every", "qos_depth", "qos_reliability", "frame_id", "diagnostics_period",
-                                "autostart"))
-        # every scalar model parameter, NaN = take it from the preset / file
-        declare_model_parameters(self)
+        declare_settings(self, ("publish_every", "frame_id", "diagnostics_period", "autostart", "lag_budget",
+                                "max_feedback_delay", "monitored_sleepers", "monitored_positions",
+                                "markers_period"))
+        declare_model_parameters(self)  # every scalar model parameter, NaN = from the preset / file
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._guard_change_state()
 
+        self._stop = stop or StopSignals()
         self.model: OnlineTrackModel | None = None
+        self.stats = OnlineStats()  # the model's counters, carried from model to model for the node's life
+        self.counters = Counters()
+        self._logged: set[str] = set()
+        self._state = "unconfigured"
+        self._configure_error = ""
         self._pub_s: Any = None
         self._pub_w: Any = None
-        self._pub_diag: Any = None
+        self._pub_mon: Any = None
+        self._pub_markers: Any = None
+        self._monitor = MonitoredSleepers(np.zeros(0, dtype=np.int64), 1.0)
         self._sub: Any = None
-        self._timer: Any = None
-        self._logged: set[str] = set()
-        self._lags: deque[float] = deque(maxlen=10000)
-        self._proc_wall = 0.0
-        self._proc_sim = 0.0
-        self._published = 0
-        self._received = 0
-        self._accepted_since = 0
+        self._accepting = False
+        self._reliability = ""
+        self._requested_reliability: Any = None
+        self._recreate = False
+        self._peers = (-1, -1)
+        self._new_stream = False
+        self._peer_lost = False
+        self._last_markers = 0.0
+        self._markers_period = 0.0
+        self._markers_watched = False  # someone subscribes to track_markers (followed by the housekeeping)
+        self._last_response: Any = None
+        self._every = 1
+        self._frame_id = "track"
+        self._busy_s = 0.0  # wall time in the data path [s]
+        self._cpu_s = 0.0  # CPU time of the executor thread in the data path [s]
+        self._rtf = (0, 0.0, 0.0, 0)
+        self._rejected_seen = 0
+        self._clock = self.get_clock()
+        self._sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._lag = LagMonitor(self._now_ns)
+        # one /diagnostics publisher for the node's whole life (never one per configure)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(0.25, self._housekeeping, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._diag = DiagnosticsThread(self._publish_diagnostics, float(self.get_parameter("diagnostics_period").value),
+                                       lambda exc: self._log("warning", f"/diagnostics not published: {exc}"))
         if self.get_parameter("autostart").value:
             self.trigger_configure()
             if self.model is not None:
                 self.trigger_activate()
+        self._diag.start()
+
+    # ------------------------------------------------------------------ helpers
+
+    def _guard_change_state(self) -> None:
+        """Answer ``change_state`` with success = false for a transition the current state does not have
+        (rclpy raises there, and the caller would wait for an answer forever)."""
+        srv = getattr(self, "_service_change_state", None)
+        if srv is None:
+            return
+        inner = srv.callback
+
+        def guarded(request: Any, response: Any) -> Any:
+            try:
+                return inner(request, response)
+            except Exception as exc:  # RCLError: no such transition from this state
+                self._log("warning", f"transition {request.transition.id} {request.transition.label!r} refused in "
+                          f"state {self._state}: {exc}")
+                response.success = False
+                return response
+
+        srv.callback = guarded
+
+    def _log(self, level: str, text: str, once: str | None = None) -> None:
+        """Log a bounded line (``once``: a key logged only the first time)."""
+        if once is not None:
+            if once in self._logged:
+                return
+            self._logged.add(once)
+        logger, line = self.get_logger(), bounded(text)
+        # one call site per severity: rclpy's logger refuses another severity from the same line
+        if level == "error":
+            logger.error(line)
+        elif level == "warning":
+            logger.warning(line)
+        else:
+            logger.info(line)
+
+    def _now_ns(self) -> int:
+        """The clock the stamps are read on [ns]: sim time with use_sim_time (0 until /clock), else system time
+        (what ROS time is without sim time, read without the cost of a Time object)."""
+        if self._sim_time:
+            return int(self._clock.now().nanoseconds)
+        return time.time_ns()
 
     # ------------------------------------------------------------------ model from parameters
 
-    def _param_overrides(self, changes: dict[str, float] | None = None) -> dict[str, float]:
+    def _param_overrides(self, changes: dict[str, Any] | None = None) -> dict[str, float]:
         out: dict[str, float] = {}
         for name, (section, _, _) in PARAMETER_DOCS.items():
             key = f"{section}.{name}"
@@ -109,7 +223,7 @@ class TrackNode(LifecycleNode):
                 out[name] = float(v)
         return out
 
-    def build_params(self, changes: dict[str, float] | None = None) -> ModelParams:
+    def build_params(self, changes: dict[str, Any] | None = None) -> ModelParams:
         """Validated ModelParams from the node parameters (plus pending ``changes``)."""
         g = self.get_parameter
         over = self._param_overrides(changes)
@@ -121,8 +235,10 @@ class TrackNode(LifecycleNode):
             raise ClmError(f"model = {model!r}: one of {', '.join(SOIL_MODELS)}")
         return load_model(g("track").value, g("soil").value, model, over)
 
-    def build_model(self, params: ModelParams, changes: dict[str, Any] | None = None) -> OnlineTrackModel:
-        """The online model (builds and factorises the simulator: refuses unstable sets)."""
+    def build_model(self, params: ModelParams, changes: dict[str, Any] | None = None,
+                    stats: OnlineStats | None = None) -> OnlineTrackModel:
+        """The online model (builds and factorises the simulator: refuses unstable sets); it counts into the
+        node's counters unless given others (``stats``)."""
 
         def get(key: str) -> Any:
             return changes[key] if changes and key in changes else self.get_parameter(key).value
@@ -136,184 +252,430 @@ class TrackNode(LifecycleNode):
             max_gap=float(get("max_gap")),
             accept_new_wheels=bool(get("accept_new_wheels")),
             lead_sleepers=None if lead < 0 else lead,
-            stats=self.model.stats if self.model is not None else None,  # counters monotonic over the node's life
+            stats=stats if stats is not None else self.stats,
             policy=InputPolicy.from_settings({name: get(name) for name in ONLINE_POLICY}),
         )
 
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
+        """Validate a physics change in every state; swap the model in when configured."""
         changes = {p.name: p.value for p in params}
-        physics = {k: v for k, v in changes.items() if k.split(".", 1)[-1] in PARAMETER_DOCS and "." in k}
-        rebuild = physics or {"max_gap", "accept_new_wheels", *ONLINE_POLICY} & changes.keys()
-        if self.model is None or not rebuild:
-            if "qos_reliability" in changes and changes["qos_reliability"] not in ("reliable", "best_effort"):
-                return SetParametersResult(successful=False, reason="qos_reliability: one of reliable, best_effort")
+        physics = {k: v for k, v in changes.items()
+                   if ("." in k and k.split(".", 1)[1] in PARAMETER_DOCS) or k in _MODEL_SETTINGS}
+        if "publish_every" in changes:
+            self._every = int(changes["publish_every"])
+        if "frame_id" in changes:
+            self._frame_id = str(changes["frame_id"])
+        if "use_sim_time" in changes:
+            self._sim_time = bool(changes["use_sim_time"])
+        if not physics:
             return SetParametersResult(successful=True)
         try:
-            new_params = self.build_params({k: float(v) for k, v in physics.items()})
-            new_model = self.build_model(new_params, changes)
-        except (ClmError, ValueError) as exc:
-            self.get_logger().warning(f"parameter update refused: {exc}")
-            return SetParametersResult(successful=False, reason=str(exc))
-        self.model = new_model
-        self.get_logger().info(f"parameters updated ({', '.join(sorted(changes))}); state restarts at the next message")
+            new_model = self.build_model(self.build_params(physics), physics)  # validates (stability too)
+        except (ClmError, ValueError, OSError) as exc:
+            self._log("warning", f"parameter update refused: {exc}")
+            return SetParametersResult(successful=False, reason=bounded(str(exc)))
+        if self.model is not None and self._state in ("inactive", "active"):
+            self.model = new_model
+            self._log("info", f"parameters updated ({', '.join(sorted(changes))}); the state restarts at the next "
+                      "message")
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ lifecycle
 
     def on_configure(self, state: State) -> TransitionCallbackReturn:
+        """Build, validate and warm up the model; create the answer publishers."""
+        g = self.get_parameter
         try:
             params = self.build_params()
-            self.model = self.build_model(params)
+            model = self.build_model(params)
+            monitored = monitored_indices(str(g("monitored_sleepers").value), str(g("monitored_positions").value),
+                                          params.track.spacing)
+            self._warm_up(params)
         except (ClmError, ValueError, OSError) as exc:
-            self.get_logger().error(f"configure refused: {exc}")
-            self.model = None
+            self._configure_error = bounded(str(exc))
+            self._log("error", f"configure refused: {exc}")
             return TransitionCallbackReturn.FAILURE
-        qos = qos_profile(int(self.get_parameter("qos_depth").value), str(self.get_parameter("qos_reliability").value))
-        self._pub_s = self.create_lifecycle_publisher(SleeperResponse, "sleeper_response", qos)
-        self._pub_w = self.create_lifecycle_publisher(WheelRailResponse, "wheel_rail_response", qos)
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self._qos = qos
-        self.get_logger().info(
-            f"configured: {params.name or 'parameter file'}, dt = {self.model.dt:g} s, "
-            f"window {self.model.n_sleepers} sleepers"
-        )
+        self.model = model
+        self._configure_error = ""
+        self._every = int(g("publish_every").value)
+        self._frame_id = str(g("frame_id").value)
+        opts = qos.overrides
+        self._pub_s = self.create_lifecycle_publisher(SleeperResponse, "sleeper_response", qos.answers_qos(),
+                                                      qos_overriding_options=opts())
+        self._pub_w = self.create_lifecycle_publisher(WheelRailResponse, "wheel_rail_response", qos.answers_qos(),
+                                                      qos_overriding_options=opts())
+        self._monitor = MonitoredSleepers(monitored, params.track.spacing)
+        if self._monitor:
+            self._pub_mon = self.create_lifecycle_publisher(SleeperResponse, "monitored_sleepers", qos.view_qos(100),
+                                                            qos_overriding_options=opts())
+        self._markers_period = float(g("markers_period").value)
+        if self._markers_period > 0:
+            self._pub_markers = self.create_lifecycle_publisher(MarkerArray, "track_markers", qos.view_qos(1),
+                                                                qos_overriding_options=opts())
+        self._state = "inactive"
+        self._log("info", f"configured: {params.name or 'parameter file'}, dt = {model.dt:g} s, window "
+                  f"{model.n_sleepers} sleepers; compiled and factorised")
         return TransitionCallbackReturn.SUCCESS
 
+    def _warm_up(self, params: ModelParams) -> None:
+        """Run a throw-away copy of the model over a few frames: every kernel compiled (or loaded from the
+        on-disk cache) and every operator factorised before the node is activated."""
+        scratch = self.build_model(params, stats=OnlineStats())
+        x = 10.0 * params.track.spacing
+        frames = [WheelFrame.of(NS + k * 10**6, [0, 1], [x + 0.08 * k, x - 2.5 + 0.08 * k], [8e4, 8e4])
+                  for k in range(4)]
+        for resp in scratch.process_batch(frames[:1]) + scratch.process_batch(frames[1:]):
+            if isinstance(resp, Rejected):
+                raise ClmError(f"warm-up frame refused: {resp}")
+            self._encode(resp)
+            window_markers(resp, rclpy_header(resp.stamp_ns, self._frame_id))
+
     def on_activate(self, state: State) -> TransitionCallbackReturn:
-        self._sub = self.create_subscription(WheelLoads, "wheel_loads", self._on_wheel_loads, self._qos)
-        self._timer = self.create_timer(
-            float(self.get_parameter("diagnostics_period").value), self._publish_diagnostics
-        )
-        return super().on_activate(state)
+        """Enable the publishers, then subscribe (the node is ready when its subscription appears)."""
+        ret = super().on_activate(state)
+        if ret != TransitionCallbackReturn.SUCCESS:
+            return ret
+        gc.collect()
+        gc.freeze()  # what exists now (model, kernels, modules) is never scanned again: shorter collections
+        self._subscribe()
+        self._accepting = True
+        self._state = "active"
+        self._log("info", f"active: subscribed to {self._sub.topic_name} ({self._reliability})")
+        return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
-        if self._sub is not None:
-            self.destroy_subscription(self._sub)
-            self._sub = None
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
-            self._timer = None
+        """Stop accepting; discard (and count) what is still queued; unsubscribe."""
+        self._unsubscribe()
+        self._state = "inactive"
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
+        """Drop the model and the publishers."""
+        return self._release()
+
+    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
+        """From any primary state: unsubscribe, drop everything; the node never answers again."""
+        return self._release("finalized", "finalized: no wheel loads are taken any more")
+
+    def on_error(self, state: State) -> TransitionCallbackReturn:
+        """A transition raised: release everything and go back to unconfigured."""
+        return self._release("unconfigured", "a transition failed; the node is unconfigured")
+
+    def _release(self, state: str = "", why: str = "") -> TransitionCallbackReturn:
+        """Unsubscribe (counting what is queued), drop the model and the publishers; now in ``state``."""
+        self._unsubscribe()
+        if why:
+            self._log("info" if state == "finalized" else "error", why)
+        for name in ("_pub_s", "_pub_w", "_pub_mon", "_pub_markers"):
+            pub = getattr(self, name)
+            if pub is not None:
+                self.destroy_lifecycle_publisher(pub)
+                setattr(self, name, None)
         self.model = None
-        for p in (self._pub_s, self._pub_w):
-            if p is not None:
-                self.destroy_lifecycle_publisher(p)
-        self._pub_s = self._pub_w = None
+        self._last_response = None
+        self._state = state or "unconfigured"
         return TransitionCallbackReturn.SUCCESS
+
+    # ------------------------------------------------------------------ subscription (QoS, peers)
+
+    def _capture_qos(self, profile: Any) -> SetParametersResult:
+        self._requested_reliability = profile.reliability
+        return SetParametersResult(successful=True)
+
+    def _subscribe(self) -> None:
+        """Subscribe to wheel_loads (raw bytes) with the QoS after the user's overrides (module clm_ros.qos)."""
+        opts = qos.overrides(callback=self._capture_qos)
+        events = SubscriptionEventCallbacks(incompatible_qos=self._on_incompatible_qos, message_lost=self._on_lost)
+        self._sub = self.create_subscription(WheelLoads, "wheel_loads", self._on_wheel_loads, qos.wheel_loads_qos(),
+                                             qos_overriding_options=opts, event_callbacks=events, raw=True)
+        pubs = self.get_publishers_info_by_topic(self._sub.topic_name)
+        self._reliability = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
+        self._recreate = False
+
+    def _unsubscribe(self) -> None:
+        """Stop accepting; take and count what is queued (not accepted: no answer owed); destroy."""
+        self._accepting = False
+        sub, self._sub = self._sub, None
+        if sub is None:
+            return
+        n = 0
+        try:
+            while sub.handle.take_message(WheelLoads, True) is not None:
+                n += 1
+        except Exception as exc:  # the subscription goes anyway
+            self._log("warning", f"discarding queued wheel loads: {exc}")
+        self.counters.received += n
+        self.counters.not_accepted += n
+        if n:
+            self._log("info", f"{n} queued wheel-load message(s) not accepted (node no longer active)")
+        self.destroy_subscription(sub)
+
+    def _on_incompatible_qos(self, event: Any) -> None:
+        self._log("warning", f"wheel_loads: a publisher offers an incompatible QoS (policy "
+                  f"{event.last_policy_kind}); subscription reliability {self._reliability}", once="incompatible")
+        self._recreate = True
+
+    def _on_lost(self, event: Any) -> None:
+        self.counters.lost += int(event.total_count_change)
+
+    def _housekeeping(self) -> None:
+        """Every 0.25 s on the executor thread: follow the publishers (QoS resolution, peers gone and back)."""
+        markers = self._pub_markers
+        self._markers_watched = markers is not None and markers.get_subscription_count() > 0
+        sub = self._sub
+        if sub is None:
+            self._peers = (-1, -1)
+            return
+        pubs = self.get_publishers_info_by_topic(sub.topic_name)
+        readers = self._pub_w.get_subscription_count() if self._pub_w is not None else 0
+        peers = (len(pubs), readers)
+        if peers != self._peers:
+            self._peers_changed(self._peers, peers)
+            self._peers = peers
+        wanted = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
+        if self._recreate or wanted != self._reliability:
+            if self._requested_reliability != ReliabilityPolicy.BEST_AVAILABLE:
+                self._recreate = False
+                return
+            old = self._reliability
+            self._replace_subscription()
+            self._log("info", f"wheel_loads: subscription re-created, reliability {old} -> {self._reliability}")
+
+    def _peers_changed(self, old: tuple[int, int], new: tuple[int, int]) -> None:
+        """Log who came and went (a peer that dies is seen when its middleware lease runs out)."""
+        if old[0] > 0 and new[0] == 0:
+            self._new_stream = self._peer_lost = True  # every source left: the next message starts a new stream
+            self._log("warning", "wheel_loads: no publisher any more (peer gone); waiting for it to return")
+        elif self._peer_lost and old[0] == 0 and new[0] > 0:
+            self._peer_lost = False
+            self._log("info", f"wheel_loads: {new[0]} publisher(s) back")
+        elif old[0] >= 0 and new[0] != old[0]:
+            self._log("info", f"wheel_loads: {old[0]} -> {new[0]} publisher(s)")
+        if old[1] > 0 and new[1] == 0:
+            self._log("warning", "wheel_rail_response: no reader any more (peer gone)")
+        elif old[1] >= 0 and new[1] != old[1]:
+            self._log("info", f"wheel_rail_response: {old[1]} -> {new[1]} reader(s)")
+
+    def _replace_subscription(self) -> None:
+        """A new subscription (QoS resolved anew); what the old one holds is answered first."""
+        old = self._sub
+        self._drain(old, [])
+        self._subscribe()
+        self._drain(old, [])
+        self.destroy_subscription(old)
 
     # ------------------------------------------------------------------ data path
 
-    def _on_wheel_loads(self, msg: WheelLoads) -> None:
-        model = self.model
-        if model is None:
-            return
-        self._received += 1
+    def _on_wheel_loads(self, first: bytes) -> None:
+        """Executor callback: this message and everything else waiting, answered in order."""
         try:
-            frame = frame_from_msg(msg)
-        except MessageError as exc:
-            self._log_rejection(model.reject(Reason.MALFORMED, str(exc)))
-            return
-        t_ns = frame.stamp_ns
-        sim_before = model.stats.simulated_ns
-        w0 = time.perf_counter()
-        try:
-            resp = model.process(frame)
-        except Rejected as exc:
-            self._log_rejection(exc)
-            return
-        self._proc_wall += time.perf_counter() - w0
-        self._proc_sim += (model.stats.simulated_ns - sim_before) / NS
-        if resp.resynced and model.stats.accepted > 1 and "resync" not in self._logged:
-            self._logged.add("resync")
-            self.get_logger().warning(f"stamp jump: state re-synchronised at t = {frame.stamp_ns / NS:.6f} s")
-        every = int(self.get_parameter("publish_every").value)
-        self._accepted_since += 1
-        if self._accepted_since % every:
-            return
-        s, w = rclpy_responses(resp, t_ns, str(self.get_parameter("frame_id").value))
-        self._pub_s.publish(s)
-        self._pub_w.publish(w)
-        self._published += 1
-        now_ns = self.get_clock().now().nanoseconds
-        self._lags.append((now_ns - t_ns) / 1e9)
+            if not self._accepting or self._sub is None:
+                self.counters.received += 1
+                self.counters.not_accepted += 1
+                return
+            self._drain(self._sub, [first])
+        except Exception as exc:  # never let one message end the node
+            self.counters.internal_errors += 1
+            tb = traceback.format_exc(limit=3).strip().splitlines()
+            self._log("error", f"internal error on a wheel-load message (counted): {exc!r}; "
+                      f"{' | '.join(tb[-4:])}", once="internal_error")
 
-    def _log_rejection(self, exc: Rejected) -> None:
+    def _drain(self, sub: Any, raws: list[bytes]) -> None:
+        """Take everything waiting in ``sub`` after ``raws`` and answer it, in chunks of at most CHUNK."""
+        take = sub.handle.take_message
+        while True:
+            got = take(WheelLoads, True)
+            if got is None:
+                break
+            raws.append(got[0])
+            if len(raws) >= CHUNK:
+                self._answer(raws)
+                raws = []
+                if self._stop.requested() or not self._accepting:
+                    return
+        if raws:
+            self._answer(raws)
+
+    def _decode(self, raws: list[bytes]) -> list[WheelFrame]:
+        """Frames of the messages; an undecodable one is a rejection (``malformed``), counted by the model."""
+        model = self.model
+        assert model is not None
+        frames: list[WheelFrame] = []
+        for raw in raws:
+            try:
+                frames.append(frame_from_cdr(raw))
+            except MessageError as exc:
+                self._reject(model.reject(Reason.MALFORMED, str(exc)))
+        return frames
+
+    def _process(self, frames: list[WheelFrame]) -> list[ResponseFrame | Rejected] | None:
+        """Every frame in one go, in order: a response or the refusal of each (None: a defect, logged)."""
+        model = self.model
+        assert model is not None
+        if self._new_stream:
+            self._new_stream = False
+            if model.last_stamp_ns is not None:
+                self.model = model = self.build_model(model.params)
+                self._log("info", "wheel_loads: a new stream (every publisher had left): the state restarts")
+        try:
+            return model.process_batch(frames)
+        except Exception as exc:  # a defect of the model: the frames are lost, counted, logged once
+            self.counters.internal_errors += len(frames)
+            self._log("error", f"internal error on {len(frames)} wheel-load message(s) (counted): {exc!r}",
+                      once="internal_error")
+            return None
+
+    def _reject(self, exc: Rejected) -> None:
         cause = exc.reason.value
-        if cause not in self._logged:
-            self._logged.add(cause)
-            self.get_logger().warning(
-                f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): {exc}"
-            )
+        self._log("warning", f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): "
+                  f"{exc}", once=cause)
+
+    def _encode(self, r: ResponseFrame) -> tuple[bytes, bytes]:
+        """Both answers to a response, serialized, stamped with the input's stamp."""
+        fid, t = self._frame_id, r.stamp_ns
+        return (
+            encode_sleeper_response(t, fid, r.sleeper_index, r.sleeper_x, r.soil_force, r.rail_deflection,
+                                    r.sleeper_displacement, r.area_displacement),
+            # ids came in as uint32 (decoded): the cast cannot overflow
+            encode_wheel_rail_response(t, fid, r.wheel_ids.astype(np.uint32), r.wheel_positions,
+                                       r.wheel_deflection, r.wheel_velocity),
+        )
+
+    def _answer(self, raws: list[bytes]) -> None:
+        """Decode, integrate and answer one chunk of messages, in order."""
+        w0, c0 = time.perf_counter(), time.thread_time()
+        c = self.counters
+        c.received += len(raws)
+        c.batches += 1
+        c.largest_batch = max(c.largest_batch, len(raws))
+        frames = self._decode(raws)
+        if not frames:
+            return
+        self._lag.waiting(len(frames), frames[0].stamp_ns)
+        results = self._process(frames)
+        if results is None:
+            self._lag.waiting(0, 0)
+            return
+        pub_s, pub_w, mon = self._pub_s, self._pub_w, self._monitor
+        every = self._every
+        stamps: list[int] = []
+        for r in results:
+            if isinstance(r, Rejected):
+                self._reject(r)
+                continue
+            self._last_response = r
+            if every > 1 and self.stats.accepted % every:
+                continue
+            s_bytes, w_bytes = self._encode(r)
+            try:
+                pub_s.publish(s_bytes)
+                pub_w.publish(w_bytes)
+                if mon:
+                    self._pub_mon.publish(mon.encode(r.stamp_ns, self._frame_id, r))
+            except Exception as exc:  # a context going down, a middleware error: counted, never fatal
+                c.publish_failed += 1
+                self._log("warning", f"an answer could not be published (counted as publish_failed): {exc}",
+                          once="publish_failed")
+                continue
+            c.published += 1
+            stamps.append(r.stamp_ns)
+        self._lag.answered(stamps)
+        self._lag.waiting(0, 0)
+        self._busy_s += time.perf_counter() - w0
+        self._cpu_s += time.thread_time() - c0
+        self._publish_markers()
+
+    def _publish_markers(self) -> None:
+        if not self._markers_watched or self._last_response is None:
+            return
+        now = time.monotonic()
+        if now - self._last_markers < self._markers_period:
+            return
+        self._last_markers = now
+        r = self._last_response
+        header = rclpy_header(r.stamp_ns, self._frame_id)
+        try:
+            self._pub_markers.publish(window_markers(r, header))
+        except Exception as exc:  # a view must never stop the answers
+            self._log("warning", f"track_markers not published: {exc}", once="markers")
+
+    # ------------------------------------------------------------------ diagnostics (own thread)
 
     def _publish_diagnostics(self) -> None:
+        g = self.get_parameter
+        budget, late = float(g("lag_budget").value), float(g("max_feedback_delay").value)
+        lag = self._lag.summary(late)
+        now = (self.stats.simulated_ns, self._busy_s, self._cpu_s, self.counters.received)
+        d_sim, d_busy, d_cpu, d_msgs = (a - b for a, b in zip(now, self._rtf))
+        self._rtf = now
+        state = self._state
+        rejected = self.stats.rejected_total + self.counters.internal_errors
+        new_rejections, self._rejected_seen = rejected - self._rejected_seen, rejected
+        if state == "active":
+            level, message = lag_level(lag, budget, late)
+            if level == OK and new_rejections:
+                level, message = WARN, f"{new_rejections} wheel-load message(s) rejected in the last period"
+        elif state == "finalized":
+            level, message = STALE, "finalized: not answering"
+        elif state == "unconfigured" and self._configure_error:
+            level, message = ERROR, f"unconfigured: configure refused: {self._configure_error}"
+        else:
+            level, message = OK, f"{state}: not subscribed to wheel_loads"
         model = self.model
-        if model is None or self._pub_diag is None:
-            return
-        st = model.stats
-        lags = np.asarray(self._lags) if self._lags else np.zeros(1)
-        rtf = self._proc_sim / self._proc_wall if self._proc_wall > 0 else 0.0
         values = {
-            "received": st.accepted + st.rejected_total,
-            "accepted": st.accepted,
-            "published": self._published,
-            "rejected": st.rejected_total,
-            **{f"rejected.{k}": v for k, v in sorted(st.rejected.items())},
-            "resyncs": st.resyncs,
-            "real_time_factor": f"{rtf:.3f}",
-            "lag_median_s": f"{float(np.median(lags)):.6f}",
-            "lag_p99_s": f"{float(np.percentile(lags, 99)):.6f}",
-            "sim_time_s": f"{(model.time_ns or 0) / NS:.6f}",
+            "state": state,
+            **self.counters.values(self.stats),
+            **lag_values(lag),
+            "lag_budget_s": f"{budget:g}",
+            "max_feedback_delay_s": f"{late:g}",
+            "real_time_factor": f"{d_sim * 1e-9 / d_busy:.3f}" if d_busy > 0 else "nan",
+            "data_path_cpu_us_per_message": f"{1e6 * d_cpu / d_msgs:.1f}" if d_msgs else "nan",
+            "wheel_load_publishers": max(self._peers[0], 0),
+            "answer_readers": max(self._peers[1], 0),
+            "wheel_loads_reliability": self._reliability or "none",
+            "sim_time_s": f"{model.time_ns / NS:.6f}" if model is not None and model.time_ns is not None else "nan",
         }
-        level = DiagnosticStatus.OK
-        message = "running"
-        if st.rejected_total:
-            level, message = DiagnosticStatus.WARN, f"{st.rejected_total} message(s) rejected"
-        if 0 < rtf < 1.0:
-            level, message = DiagnosticStatus.WARN, f"slower than real time (RTF {rtf:.2f})"
-        status = DiagnosticStatus(
-            level=level,
-            name=f"{self.get_name()}: track-soil model",
-            message=message,
-            hardware_id="clm_core",
-            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
-        )
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        self._pub_diag.publish(arr)
+        self._pub_diag.publish(diagnostic_array(f"{self.get_name()}: track-soil model", level, message, values,
+                                                self.get_clock().now().to_msg()))
 
-    def stats(self) -> dict[str, Any]:
-        """Counters (for tests and the launcher)."""
-        st = self.model.stats if self.model else None
-        return {
-            "received": self._received,
-            "published": self._published,
-            "accepted": st.accepted if st else 0,
-            "rejected": dict(st.rejected) if st else {},
-        }
+    def destroy_node(self) -> None:
+        """Stop the diagnostics thread, then destroy the node."""
+        self._diag.stop()
+        self._accepting = False
+        super().destroy_node()
+
+    def counts(self) -> dict[str, Any]:
+        """Every counter of the node's life, as in ``/diagnostics`` (for tests and the launcher)."""
+        return self.counters.values(self.stats)
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console entry point ``track_node``."""
-    rclpy.init(args=args)
-    node = None
+    """Console entry point ``track_node``: exit 0 on SIGINT/SIGTERM (within 2 s, also under load), 2 when the
+    model cannot be configured at start."""
+    stop = StopSignals()
+    stop.install(interrupt=True)  # during start-up a signal interrupts at once
+    node: TrackNode | None = None
+    executor: Any = None
     try:
-        node = TrackNode()
+        publish_synchronously()
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        node = TrackNode(stop=stop)
         if node.model is None and node.get_parameter("autostart").value:
             return 2
-        # rclpy's EventsExecutor costs ~30 % less CPU per message than the
-        # SingleThreadedExecutor; its spin() delivered no callback to this node on the
-        # Jazzy wheels, a spin_once loop does (measured: benchmarks/node_lag.py).
+        # EventsExecutor: ~30 % less CPU per message than the SingleThreadedExecutor; its constructor installs
+        # its own SIGINT/SIGTERM handlers, replaced by ours right after
         executor = EventsExecutor()
         executor.add_node(node)
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        stop.install(interrupt=False)
+        spin_until_stopped(executor, stop, rclpy.ok, node.get_logger().error)
+    except KeyboardInterrupt:
         pass
     finally:
+        stop.install(interrupt=False)
         if node is not None:
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
         rclpy.try_shutdown()
     return 0
 

@@ -1,0 +1,284 @@
+"""Soak: the track node for a long run of valid traffic, hostile frames, lifecycle transitions, parameter updates.
+
+The track node (``clm_ros.track_node``, Mevergnies CLM, 61 sleepers) runs as a
+process of its own; this process feeds it for ``--duration`` s of wall time:
+
+- valid wheel loads at ``--rate`` Hz (4 wheels at 83.33 m/s; stamps continuous
+  in 1/rate steps: pauses for transitions do not open stamp gaps);
+- ``--hostile`` (1 %) hostile frames between them, drawn from: random bytes,
+  truncated CDR, a header ``nanosec`` >= 1e9, NaN force, force 1.7e308 N,
+  position 1e19 m, negative force, duplicate ids, unknown ids, a thousand
+  wheels, a stamp 1e6 s ahead, a stamp going back;
+- every 20-60 s a random lifecycle cycle (deactivate/activate, or
+  deactivate/cleanup/configure/activate) and every 10-30 s a parameter update
+  (a valid ``track.kb``, or an unstable ``soil.dc`` that must be refused).
+  Traffic pauses around a transition until every answer owed has arrived.
+
+Printed (never asserted): valid frames sent = answered (each exactly once),
+hostile frames answered (must be 0), the node's counters, the transitions
+and updates, and the node's resident memory (RSS) and open file
+descriptors from the first minute to the end (target: RSS flat within 5 %).
+
+Usage::
+
+    python benchmarks/soak.py [--duration 600] [--rate 1000] [--hostile 0.01] [--seed 1] [--hog N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import random
+import signal
+import struct
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from node_lag import Listener, header_stamp, hogs, track_node
+from online_path import stream
+
+from clm_core.io.messages import encode_wheel_loads
+from clm_core.io.timebase import NS
+
+HOSTILE = ("random_bytes", "truncated", "nanosec", "nan_force", "huge_force", "far_position", "tensile",
+           "duplicate_id", "unknown_id", "thousand_wheels", "future_stamp", "stamp_back")
+
+
+def hostile(kind: str, rng: random.Random, t_ns: int, valid: bytes, pos: np.ndarray) -> bytes:
+    """A frame of ``kind`` stamped near ``t_ns`` (between two valid frames) that the node must refuse."""
+    f = np.full(4, 85e3)
+    ids = [0, 1, 2, 3]
+    if kind == "random_bytes":
+        return bytes(rng.getrandbits(8) for _ in range(rng.randrange(1, 200)))
+    if kind == "truncated":
+        return valid[: rng.randrange(4, len(valid) - 8)]
+    if kind == "nanosec":
+        return valid[:8] + struct.pack("<I", 1_500_000_000) + valid[12:]
+    if kind == "nan_force":
+        f[rng.randrange(4)] = float("nan")
+    elif kind == "huge_force":
+        f[rng.randrange(4)] = 1.7e308
+    elif kind == "far_position":
+        pos = pos.copy()
+        pos[rng.randrange(4)] = 1e19
+    elif kind == "tensile":
+        f[rng.randrange(4)] = -5e4
+    elif kind == "duplicate_id":
+        ids = [0, 0, 2, 3]
+    elif kind == "unknown_id":
+        ids = [0, 1, 2, 77]
+    elif kind == "thousand_wheels":
+        n = 1000
+        return encode_wheel_loads(t_ns, "track", np.arange(n), np.linspace(0, 10, n), np.full(n, 1e3))
+    elif kind == "future_stamp":
+        t_ns += 10**6 * NS
+    elif kind == "stamp_back":
+        t_ns -= 50 * 10**6
+    return encode_wheel_loads(t_ns, "track", ids, pos, f)
+
+
+def rss_fds(pid: int) -> tuple[float, int]:
+    """Resident memory [MB] and open file descriptors of a process."""
+    status = Path(f"/proc/{pid}/status").read_text()
+    rss = float(next(ln.split()[1] for ln in status.splitlines() if ln.startswith("VmRSS"))) / 1024
+    return rss, len(os.listdir(f"/proc/{pid}/fd"))
+
+
+class Control:
+    """Lifecycle transitions and parameter updates of the node through its services."""
+
+    def __init__(self, lis: Listener) -> None:
+        from lifecycle_msgs.srv import ChangeState
+        from rcl_interfaces.srv import SetParameters
+
+        self.lis = lis
+        self.change = lis.node.create_client(ChangeState, "/clm_track_node/change_state")
+        self.setp = lis.node.create_client(SetParameters, "/clm_track_node/set_parameters")
+
+    def _call(self, cli: Any, req: Any) -> Any:
+        self.lis.wait(cli.service_is_ready, 30, "service")
+        fut = cli.call_async(req)
+        self.lis.wait(fut.done, 60, "service answer")
+        return fut.result()
+
+    def transition(self, label: str) -> bool:
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+
+        return bool(self._call(self.change, ChangeState.Request(transition=Transition(label=label))).success)
+
+    def set_double(self, name: str, value: float) -> bool:
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+
+        req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
+            type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
+        return bool(self._call(self.setp, req).results[0].successful)
+
+
+def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
+    from clm_msgs.msg import WheelRailResponse
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    rng = random.Random(a.seed)
+    period = round(NS / a.rate)
+    with track_node({"diagnostics_period": 0.5}, log_dir, "track_node_soak") as (proc, lis):
+        qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        wheel_answers: list[int] = []
+        wsub = lis.node.create_subscription(WheelRailResponse, "/wheel_rail_response",
+                                            lambda b: wheel_answers.append(header_stamp(b)), qos, raw=True)
+        ctl = Control(lis)
+        chunk = stream(10_000, a.rate)  # positions repeat every 10 s of traffic, shifted forwards
+        t_first = time.time_ns()
+        valid: list[int] = []
+        hostile_sent: dict[str, int] = dict.fromkeys(HOSTILE, 0)
+        hostile_stamps: set[int] = set()
+        log: list[str] = []
+        mem: list[tuple[float, float, int]] = []
+        updates = {"valid": 0, "valid_refused": 0, "unstable_refused": 0, "unstable_accepted": 0}
+        t0 = time.monotonic()
+        next_cycle = t0 + rng.uniform(20, 60)
+        next_update = t0 + rng.uniform(10, 30)
+        next_mem = t0
+        next_due = time.monotonic()
+        k = 0
+
+        def settle() -> None:
+            """Every answer owed has arrived (or none came for 5 s: the report shows what is missing)."""
+            last, t_last = -1, time.monotonic()
+            while len(lis.stamps) < len(valid) or len(wheel_answers) < len(valid):
+                got = len(lis.stamps) + len(wheel_answers)
+                if got != last:
+                    last, t_last = got, time.monotonic()
+                elif time.monotonic() - t_last > 5.0:
+                    return
+                lis.spin_for(0.02)
+
+        def ready() -> None:
+            lis.wait(lambda: lis.pub.get_subscription_count() >= 1 and lis.sub.get_publisher_count() >= 1
+                     and wsub.get_publisher_count() >= 1, 60, "the node active and matched")
+
+        while (now := time.monotonic()) - t0 < a.duration:
+            if now >= next_mem:
+                mem.append((now - t0, *rss_fds(proc.pid)))
+                next_mem = now + 10
+            if now >= next_cycle:
+                settle()
+                full = rng.random() < 0.5
+                labels = ["deactivate", "cleanup", "configure", "activate"] if full else ["deactivate", "activate"]
+                for label in labels:
+                    ok = ctl.transition(label)
+                    log.append(f"{now - t0:6.1f} s {label}: {'ok' if ok else 'REFUSED'}")
+                    if label == "deactivate":  # this process sees the subscription go before it comes back
+                        lis.wait(lambda: lis.pub.get_subscription_count() == 0, 30, "the subscription gone")
+                    if label == "cleanup":
+                        lis.wait(lambda: lis.sub.get_publisher_count() == 0, 30, "old answer publishers gone")
+                ready()
+                next_cycle = time.monotonic() + rng.uniform(20, 60)
+                next_due = time.monotonic()
+            if now >= next_update:
+                if rng.random() < 0.7:
+                    kb = rng.uniform(40e6, 80e6)
+                    key = "valid" if ctl.set_double("track.kb", kb) else "valid_refused"
+                else:
+                    key = "unstable_accepted" if ctl.set_double("soil.dc", -4e5) else "unstable_refused"
+                updates[key] += 1
+                next_update = time.monotonic() + rng.uniform(10, 30)
+            if now < next_due:
+                lis.ex.spin_once(timeout_sec=next_due - now)
+                continue
+            next_due += 1.0 / a.rate
+            f = chunk[k % len(chunk)]
+            t_ns = t_first + k * period
+            pos = f.positions + 83.33 * 10.0 * (k // len(chunk))
+            raw = encode_wheel_loads(t_ns, "track", f.ids, pos, f.forces)
+            if rng.random() < a.hostile:
+                kind = rng.choice(HOSTILE)
+                h = hostile(kind, rng, t_ns - period // 2, raw, pos)
+                hostile_sent[kind] += 1
+                with contextlib.suppress(struct.error, IndexError):
+                    hostile_stamps.add(header_stamp(h))
+                lis.pub.publish(h)
+            lis.pub.publish(raw)
+            valid.append(t_ns)
+            k += 1
+        settle()
+        mem.append((time.monotonic() - t0, *rss_fds(proc.pid)))
+        n_diag = len(lis.diags)
+        lis.wait(lambda: len(lis.diags) > n_diag + 1, 10, "final diagnostics")
+        d = lis.diags[-1]
+        answered = lis.stamps
+        t_sig = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        rc = proc.wait(30)
+        exit_s = time.monotonic() - t_sig
+    valid_set = set(valid)
+    return {
+        "valid_sent": len(valid), "answered": len(answered), "answered_wheel_rail": len(wheel_answers),
+        "answered_valid_distinct": len(valid_set & set(answered)),
+        "duplicates": len(answered) - len(set(answered)),
+        "answered_hostile": len(hostile_stamps & set(answered) - valid_set),
+        "in_order": answered == sorted(answered), "hostile_sent": hostile_sent, "node": d, "log": log,
+        "updates": updates, "memory": mem, "exit_code": rc, "exit_s": exit_s, "loadavg": os.getloadavg()[0],
+    }
+
+
+def report(r: dict[str, Any], a: argparse.Namespace) -> None:
+    d = r["node"]
+    print(f"soak: {a.duration:g} s at {a.rate:g} Hz, {100 * a.hostile:g} % hostile frames, seed {a.seed}, "
+          f"{a.hog} hog(s); load average {r['loadavg']:.2f}")
+    ok = r["answered_valid_distinct"] == r["valid_sent"] == r["answered"] == r["answered_wheel_rail"]
+    print(f"valid frames: sent {r['valid_sent']}, answered {r['answered']} (sleeper_response), "
+          f"{r['answered_wheel_rail']} (wheel_rail_response), distinct {r['answered_valid_distinct']}, duplicates "
+          f"{r['duplicates']}, in order {r['in_order']}: in = out {'YES' if ok else 'NO'}")
+    print(f"hostile frames: sent {sum(r['hostile_sent'].values())} "
+          f"({', '.join(f'{k} {v}' for k, v in r['hostile_sent'].items())}); answered {r['answered_hostile']}")
+    rej = {k[len('rejected.'):]: v for k, v in d.items() if k.startswith("rejected.")}
+    print(f"node counters: received {d['received']}, accepted {d['accepted']}, published {d['published']}, "
+          f"rejected {d['rejected']} ({', '.join(f'{k} {v}' for k, v in rej.items())}), not accepted "
+          f"{d['not_accepted']}, resyncs {d['resyncs']}, publish failed {d['publish_failed']}, largest batch "
+          f"{d['largest_batch']}")
+    print(f"lifecycle: {len(r['log'])} transitions ({sum('REFUSED' in x for x in r['log'])} refused); parameter "
+          f"updates: {r['updates']}")
+    mem = r["memory"]
+    base = next((m for m in mem if m[0] >= 60.0), mem[min(1, len(mem) - 1)])
+    last = mem[-1]
+    peak = max(m[1] for m in mem)
+    print(f"memory: RSS {base[1]:.1f} MB at {base[0]:.0f} s -> {last[1]:.1f} MB at {last[0]:.0f} s "
+          f"({100 * (last[1] / base[1] - 1):+.1f} %; peak {peak:.1f} MB; at start {mem[0][1]:.1f} MB); "
+          f"file descriptors {base[2]} -> {last[2]} (start {mem[0][2]})")
+    print(f"exit on SIGINT: code {r['exit_code']} after {r['exit_s']:.2f} s")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration", type=float, default=600.0, help="wall seconds of traffic")
+    ap.add_argument("--rate", type=float, default=1000.0, help="valid wheel-load rate [Hz]")
+    ap.add_argument("--hostile", type=float, default=0.01, help="fraction of hostile frames (one per draw)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--hog", type=int, default=0, help="busy-loop processes for the whole run")
+    ap.add_argument("--keep-logs", default=None, help="directory for the node log")
+    ap.add_argument("--timeline", action="store_true", help="print the transitions and the memory samples")
+    a = ap.parse_args()
+    with contextlib.ExitStack() as stack:
+        log_dir = Path(a.keep_logs) if a.keep_logs else Path(stack.enter_context(
+            tempfile.TemporaryDirectory(prefix="clm_soak_")))
+        log_dir.mkdir(parents=True, exist_ok=True)
+        stack.enter_context(hogs(a.hog))
+        r = soak(a, log_dir)
+    report(r, a)
+    if a.timeline:
+        print("\n".join(r["log"]))
+        print("\n".join(f"{t:7.1f} s RSS {m:7.1f} MB fds {n}" for t, m, n in r["memory"]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
