@@ -41,6 +41,7 @@ def test_compiled_step_equals_the_python_path(params: ModelParams) -> None:
         P_fast, P_ref = fast.advance(SUBSTEPS), ref.advance(SUBSTEPS)
         np.testing.assert_allclose(P_fast, P_ref, rtol=1e-12, atol=0)
         np.testing.assert_array_equal(fast.positions(), ref.positions())
+        np.testing.assert_array_equal(fast.x, fast.positions())
         if k % 3 == 2:  # the answer to the message two back, with a track/predictor difference
             step = fast.k - 2 * SUBSTEPS
             answer = fast._history[step] + 1e-5 * rng.standard_normal(fast.train.n_wheels)
@@ -53,6 +54,69 @@ def test_compiled_step_equals_the_python_path(params: ModelParams) -> None:
     assert fast.contact_lost_steps == ref.contact_lost_steps
     # the run is not trivial: the profile moves the wheel loads by several kN
     assert np.ptp([fast.P.min(), fast.P.max()]) > 0 and fast.offset.any()
+
+
+def _numpy_advance(sv: StreamingVehicle, n_steps: int) -> np.ndarray:
+    """The vehicle step before it was compiled whole: numpy, LAPACK's solve, new arrays everywhere.
+
+    Positions and irregularity as ``Irregularity.wheel_irregularity``; per
+    step the SDOF predictor, the vehicle's Newmark prediction, the Hertz
+    contact by Newton with backtracking, the updates (state of ``sv`` in place).
+    """
+    tr, veh, dt = sv.train, sv.veh, sv.dt
+    t = (sv.k + 1 + np.arange(n_steps)) * dt
+    R = sv.sim.irregularity.wheel_irregularity(sv.sim.wheel_positions(t), sv.x0, tr.wheel_radius)
+    Mt, Ct, S, ch = sv.eq.Mt, sv.eq.Ct, sv._S, sv.sim.hertz
+    P = sv.P
+    for i in range(n_steps):
+        rhs = Mt * (4.0 / dt**2 * sv.w + 4.0 / dt * sv.v + sv.a) + Ct * (2.0 / dt * sv.w + sv.v)
+        w_free = rhs / S + sv.offset
+        a0 = 4.0 / dt**2
+        f = tr.gravity_force + tr.M @ (a0 * veh.u + (4.0 / dt) * veh.v + veh.a) + tr.C @ ((2.0 / dt) * veh.u + veh.v)
+        u_free = veh._Kinv @ f
+        d0 = u_free[tr.wheel_dof] - w_free - R[i]
+        A = veh.H + sv.G
+        d = sv.delta.copy()
+        P = ch * np.maximum(d, 0.0) ** 1.5
+        res = d - d0 + A @ P
+        while np.max(np.abs(res)) > 1e-14:
+            J = np.eye(d.size) + A * (1.5 * ch * np.sqrt(np.maximum(d, 0.0)))[None, :]
+            step = np.linalg.solve(J, -res)
+            lam = 1.0
+            while True:
+                trial = d + lam * step
+                Pt = ch * np.maximum(trial, 0.0) ** 1.5
+                rt = trial - d0 + A @ Pt
+                if np.max(np.abs(rt)) < np.max(np.abs(res)) or lam < 1e-10:
+                    break
+                lam *= 0.5
+            d, P, res = trial, Pt, rt
+        sv.delta[:] = d
+        u_new = u_free - veh._KinvB @ P
+        du = u_new - veh.u
+        veh.a[:] = a0 * du - (4.0 / dt) * veh.v - veh.a
+        veh.v[:] = (2.0 / dt) * du - veh.v
+        veh.u[:] = u_new
+        dw = (rhs + P) / S - sv.w
+        sv.a[:] = 4.0 / dt**2 * dw - 4.0 / dt * sv.v - sv.a
+        sv.v[:] = 2.0 / dt * dw - sv.v
+        sv.w[:] = sv.w + dw
+    sv.k += n_steps
+    sv._history[sv.k] = sv.w.copy()
+    return P
+
+
+def test_compiled_step_equals_the_numpy_step_it_replaces(params: ModelParams) -> None:
+    """The allocation-free compiled step (own 4x4 elimination, loops) against the numpy/LAPACK step: rounding only."""
+    fast, ref = _pair(params, duration=0.5)
+    for k in range(300):
+        np.testing.assert_allclose(fast.advance(SUBSTEPS), _numpy_advance(ref, SUBSTEPS), rtol=1e-10)
+        if k % 3 == 2:
+            answer = fast._history[fast.k - SUBSTEPS] + 3e-6 * np.cos(k)
+            fast.set_track_response(fast.k - SUBSTEPS, answer)
+            ref.set_track_response(ref.k - SUBSTEPS, answer)
+    np.testing.assert_allclose(fast.veh.u, ref.veh.u, rtol=1e-10, atol=1e-16)
+    np.testing.assert_allclose(fast.w, ref.w, rtol=1e-10)
 
 
 def test_defects_go_through_the_python_evaluation(params: ModelParams) -> None:

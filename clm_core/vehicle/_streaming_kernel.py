@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from clm_core.vehicle.contact import fused_vehicle_contact_step
+from clm_core.vehicle.contact import contact_work_size, vehicle_contact_step_into
 
 Array = NDArray[np.float64]
 
@@ -47,12 +47,18 @@ OUTSIDE_PROFILE = 1
 
 
 @njit(cache=True)
+def work_size(n_dof: int, n_w: int) -> int:  # pragma: no cover - compiled
+    """Length of the work array of :func:`sdof_vehicle_steps` and :func:`message_steps`."""
+    return contact_work_size(n_dof, n_w) + 2 * n_w
+
+
+@njit(cache=True)
 def sdof_vehicle_steps(
     Kinv: Array, KinvB: Array, H: Array, M: Array, C: Array, grav: Array, wdof: NDArray[np.int64],
-    u: Array, v: Array, a: Array, dt: float, R: Array, ch: Array, delta: Array,
+    u: Array, v: Array, a: Array, dt: float, R: Array, ch: Array, delta: Array, P: Array,
     Mt: float, Ct: float, S: float, G: Array, w: Array, vw: Array, aw: Array, offset: Array,
-    tol: float, maxit: int,
-) -> tuple[Array, Array, int, float, int]:  # pragma: no cover - compiled
+    tol: float, maxit: int, work: Array,
+) -> tuple[int, float, int]:  # pragma: no cover - compiled
     """``R.shape[0]`` steps of vehicle + Hertz contact + per-wheel SDOF track predictor (state in place).
 
     Parameters
@@ -69,8 +75,9 @@ def sdof_vehicle_steps(
         Irregularity under each wheel at each step [m] (positive downwards).
     ch : (n_w,) array
         Hertz constants [N/m^1.5].
-    delta : (n_w,) array
-        Contact compressions [m] at the start (Newton start value).
+    delta, P : (n_w,) arrays
+        Contact compressions [m] (the Newton start value; updated) and
+        forces [N] (output: those of the last step).
     Mt, Ct, S : float
         Predictor mass [kg], damping [N s/m] and Newmark step stiffness [N/m].
     G : (n_w, n_w) array
@@ -81,36 +88,48 @@ def sdof_vehicle_steps(
         Track-minus-predictor correction added to the free deflection [m].
     tol, maxit : float, int
         Newton tolerance [m] and iteration limit.
+    work : array
+        :func:`work_size` (n_dof, n_w) values (nothing is allocated per step).
 
     Returns
     -------
-    (delta, P, iterations, residual, lost) : compressions [m] and contact
-    forces [N] after the last step, the largest Newton iteration count and
-    residual [m] over the steps, and the wheel-steps without contact.
+    (iterations, residual, lost) : the largest Newton iteration count and
+    residual [m] over the steps (infinite when a force is not finite), and
+    the wheel-steps without contact.
     """
     n_w = w.shape[0]
-    P = np.zeros(n_w)
+    rhs = work[:n_w]
+    w_free = work[n_w : 2 * n_w]
+    cwork = work[2 * n_w :]
+    c4 = 4.0 / dt**2
+    c1 = 4.0 / dt
+    c2 = 2.0 / dt
     worst = 0.0
     lost = 0
     maxit_used = 0
     for i in range(R.shape[0]):
-        rhs = Mt * (4.0 / dt**2 * w + 4.0 / dt * vw + aw) + Ct * (2.0 / dt * w + vw)
-        w_free = rhs / S + offset
-        delta, P, it, rn = fused_vehicle_contact_step(
-            Kinv, KinvB, H, M, C, grav, wdof, u, v, a, dt, w_free, G, R[i], ch, delta, tol, maxit
-        )
-        worst = max(worst, rn)
-        maxit_used = max(maxit_used, it)
-        w_new = (rhs + P) / S
-        dw = w_new - w
-        vw_new = 2.0 / dt * dw - vw
-        aw[:] = 4.0 / dt**2 * dw - 4.0 / dt * vw - aw
-        vw[:] = vw_new
-        w[:] = w_new
         for j in range(n_w):
+            rhs[j] = Mt * (c4 * w[j] + c1 * vw[j] + aw[j]) + Ct * (c2 * w[j] + vw[j])
+            w_free[j] = rhs[j] / S + offset[j]
+        it, rn = vehicle_contact_step_into(
+            Kinv, KinvB, H, M, C, grav, wdof, u, v, a, dt, w_free, G, R[i], ch, delta, tol, maxit, delta, P, cwork
+        )
+        if not rn <= worst:  # NaN propagates
+            worst = rn
+        maxit_used = max(maxit_used, it)
+        for j in range(n_w):
+            w_new = (rhs[j] + P[j]) / S
+            dw = w_new - w[j]
+            vw_new = c2 * dw - vw[j]
+            aw[j] = c4 * dw - c1 * vw[j] - aw[j]
+            vw[j] = vw_new
+            w[j] = w_new
             if P[j] <= 0.0:
                 lost += 1
-    return delta, P, maxit_used, worst, lost
+    for j in range(n_w):
+        if not np.isfinite(P[j]):
+            worst = np.inf
+    return maxit_used, worst, lost
 
 
 @njit(cache=True)
@@ -150,12 +169,12 @@ def wheel_path(
 @njit(cache=True)
 def message_steps(
     Kinv: Array, KinvB: Array, H: Array, M: Array, C: Array, grav: Array, wdof: NDArray[np.int64],
-    u: Array, v: Array, a: Array, dt: float, ch: Array, delta: Array,
+    u: Array, v: Array, a: Array, dt: float, ch: Array, delta: Array, P: Array,
     Mt: float, Ct: float, S: float, G: Array, w: Array, vw: Array, aw: Array, offset: Array,
-    tol: float, maxit: int,
+    tol: float, maxit: int, work: Array,
     k: int, x_start: float, speed: float, wheel_offset: Array, px: Array, pr: Array, lead_in: float, x0: Array,
     X: Array, R: Array, given_R: bool,
-) -> tuple[int, Array, Array, int, float, int]:  # pragma: no cover - compiled
+) -> tuple[int, int, float, int]:  # pragma: no cover - compiled
     """The steps behind one message: wheel path, irregularity, ``X.shape[0]`` predictor + vehicle steps.
 
     Parameters are those of :func:`sdof_vehicle_steps` and :func:`wheel_path`;
@@ -165,9 +184,9 @@ def message_steps(
 
     Returns
     -------
-    (status, delta, P, iterations, residual, lost) : :data:`OK` or
-    :data:`OUTSIDE_PROFILE` (then nothing else is meaningful and the state is
-    untouched), then as :func:`sdof_vehicle_steps`.
+    (status, iterations, residual, lost) : :data:`OK` or
+    :data:`OUTSIDE_PROFILE` (then the state is untouched), then as
+    :func:`sdof_vehicle_steps`.
     """
     n = X.shape[0]
     if given_R:
@@ -175,8 +194,9 @@ def message_steps(
     else:
         ok = wheel_path(k, n, dt, x_start, speed, wheel_offset, px, pr, lead_in, x0, X, R)
     if not ok:
-        return OUTSIDE_PROFILE, delta, np.zeros(w.shape[0]), 0, 0.0, 0
-    d, P, it, rn, lost = sdof_vehicle_steps(
-        Kinv, KinvB, H, M, C, grav, wdof, u, v, a, dt, R, ch, delta, Mt, Ct, S, G, w, vw, aw, offset, tol, maxit
+        return OUTSIDE_PROFILE, 0, 0.0, 0
+    it, rn, lost = sdof_vehicle_steps(
+        Kinv, KinvB, H, M, C, grav, wdof, u, v, a, dt, R, ch, delta, P, Mt, Ct, S, G, w, vw, aw, offset, tol,
+        maxit, work,
     )
-    return OK, d, P, it, rn, lost
+    return OK, it, rn, lost

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from clm_core.errors import InputError, ParameterError
-from clm_core.vehicle._streaming_kernel import OUTSIDE_PROFILE, message_steps
+from clm_core.vehicle._streaming_kernel import OUTSIDE_PROFILE, message_steps, work_size
 from clm_core.vehicle.contact import static_compression
 from clm_core.vehicle.coupled import CoupledSimulation
 from clm_core.vehicle.multibody import VehicleNewmark
@@ -87,7 +87,7 @@ class StreamingVehicle:
         self.v = np.zeros(n)
         self.a = np.zeros(n)
         self.offset = np.zeros(n)
-        self.delta = static_compression(self.P, sim.hertz)
+        self.delta = np.ascontiguousarray(static_compression(self.P, sim.hertz), dtype=np.float64)
         r0 = sim.irregularity.wheel_irregularity(x0[None, :], x0, tr.wheel_radius)[0]
         self.veh = VehicleNewmark(tr, dt)
         self.veh.set_state(tr.static_state(self.w + r0 + self.delta), None, self.P)
@@ -105,23 +105,27 @@ class StreamingVehicle:
         self._speed = float(sim.speed)
         self._offsets = np.ascontiguousarray(tr.wheel_offset, dtype=np.float64)
         self._x0 = np.ascontiguousarray(x0, dtype=np.float64)
+        #: wheel positions now [m] (those of :meth:`positions`, kept by :meth:`advance`)
+        self.x: Array = self._x0.copy()
         self._work: dict[int, tuple[Array, Array]] = {}
+        self._kwork = np.empty(work_size(self.veh.u.shape[0], n))
         self.warm_up()
 
     def warm_up(self) -> None:
         """Compile (or load from the on-disk cache) the stepping kernel on copies of the state: no effect on the run."""
         n = self.train.n_wheels
-        self._call(1, self.veh.u.copy(), self.veh.v.copy(), self.veh.a.copy(), self.delta.copy(), self.w.copy(),
-                   self.v.copy(), self.a.copy(), np.empty((1, n)), np.zeros((1, n)), self.python_irregularity)
+        self._call(self.veh.u.copy(), self.veh.v.copy(), self.veh.a.copy(), self.delta.copy(), self.P.copy(),
+                   self.w.copy(), self.v.copy(), self.a.copy(), np.empty((1, n)), np.zeros((1, n)),
+                   self.python_irregularity)
 
-    def _call(self, n_steps: int, u: Array, v: Array, a: Array, delta: Array, w: Array, vw: Array, aw: Array,
-              X: Array, R: Array, given_R: bool) -> tuple[int, Array, Array, int, float, int]:
+    def _call(self, u: Array, v: Array, a: Array, delta: Array, P: Array, w: Array, vw: Array, aw: Array,
+              X: Array, R: Array, given_R: bool) -> tuple[int, int, float, int]:
         tr, veh = self.train, self.veh
         return message_steps(
             veh._Kinv, veh._KinvB, veh.H, tr.M, tr.C, tr.gravity_force, tr.wheel_dof, u, v, a, self.dt,
-            self.sim.hertz, delta, self.eq.Mt, self.eq.Ct, self._S, self.G, w, vw, aw, self.offset, 1e-14, 50,
-            self.k, self._x_start, self._speed, self._offsets, self._px, self._pr, self._lead_in, self._x0,
-            X, R, given_R,
+            self.sim.hertz, delta, P, self.eq.Mt, self.eq.Ct, self._S, self.G, w, vw, aw, self.offset, 1e-14, 50,
+            self._kwork, self.k, self._x_start, self._speed, self._offsets, self._px, self._pr, self._lead_in,
+            self._x0, X, R, given_R,
         )
 
     @property
@@ -189,15 +193,17 @@ class StreamingVehicle:
             R[:] = self.sim.irregularity.wheel_irregularity(self.sim.wheel_positions(t), self.x0,
                                                             self.train.wheel_radius)
         veh = self.veh
-        status, delta, P, _, worst, lost = self._call(n_steps, veh.u, veh.v, veh.a, self.delta, self.w, self.v,
-                                                      self.a, X, R, self.python_irregularity)
+        P = np.empty(self.train.n_wheels)
+        status, _, worst, lost = self._call(veh.u, veh.v, veh.a, self.delta, P, self.w, self.v, self.a, X, R,
+                                            self.python_irregularity)
         if status == OUTSIDE_PROFILE:
             # the profile's own message (which positions, which coverage)
             self.sim.irregularity.wheel_irregularity(X, self.x0, self.train.wheel_radius)
             raise InputError(f"wheels at [{X.min():g}, {X.max():g}] m run off the rail profile")
-        if not (worst <= 1e-14 and np.all(np.isfinite(P))):
+        if not worst <= 1e-14:  # a non-finite force gives an infinite residual
             raise InputError(f"contact Newton iteration did not converge (residual {worst:.3g} m)")
-        self.delta, self.P = delta, P
+        self.P = P
+        self.x = X[-1].copy()
         self.contact_lost_steps += int(lost)
         self.k += n_steps
         self._history[self.k] = self.w.copy()
