@@ -4,24 +4,35 @@
 
 - ``rclpy.init`` without rclpy's own signal handlers (they shut the context
   down under the feet of a thread that is publishing: an ``RCLError`` or an
-  abort); SIGINT and SIGTERM only set a flag here;
+  abort); SIGINT and SIGTERM only set a flag here; Fast DDS publishes
+  synchronously unless ``RMW_FASTRTPS_PUBLICATION_MODE`` says otherwise
+  (:data:`PUBLICATION_MODE`);
 - an ``EventsExecutor`` spun with ``spin_once`` (its ``spin()`` delivered no
   callback on the Jazzy wheels; measured in benchmarks/node_lag.py) until the
   flag is set or the node asks to exit;
 - then, in this order: the node's :meth:`stop` (it stops its own threads;
-  they never outlive it), the executor, the node, the context. Exit code 0.
+  they never outlive it), the executor, the node, the context (the DDS
+  participant leaves the graph, announced to its peers). Exit code 0.
 
-A node used with it may define ``stop()`` (stop threads, called once, before
-anything is destroyed) and an ``exit_code`` attribute (None while it runs; a
-number ends the process with that code, e.g. after its last train).
+A node used with it may define ``service()`` (called between two turns of
+the executor: it does what is due and returns how long the executor may wait
+for callbacks until its next action [s], so that a node with a timetable,
+such as the vehicle node, needs no thread of its own), ``stop()`` (called
+once, before anything is destroyed) and an ``exit_code`` attribute (None
+while it runs; a number ends the process with that code, e.g. after its
+last train).
 
 The flag is polled every ``poll`` seconds (0.1 s): the exit after a signal
-takes that plus the node's ``stop`` (tests/ros/test_vehicle_node.py measures
-it against the 2-s requirement of issue 12).
+takes that plus the node's ``stop``, a few ms. :func:`exit_process` then ends
+the process without the interpreter's finalization, which takes 0.3-1.5 s
+with numba, numpy and scipy loaded on a busy 2-core machine (measured), once
+everything of ROS has been destroyed in order (tests/ros/test_vehicle_node.py
+measures the exit against the 2-s requirement of issue 12).
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -33,8 +44,15 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import get_default_context
 
 from clm_core.errors import ClmError
+
+#: Fast DDS publication mode of the node processes unless the environment sets one: a synchronous write
+#: sends from the publishing thread; the asynchronous default hands every message to a thread of Fast DDS,
+#: one more thread switch per message: 85-90 against 150-190 us of CPU per message for a 1-kHz raw publisher
+#: with one reliable subscriber on the 2-core machine (load 4-5), measured for issue 10.
+PUBLICATION_MODE = "SYNCHRONOUS"
 
 
 def run_node(make: Callable[[], Any], args: Sequence[str] | None = None, name: str = "node",
@@ -59,6 +77,7 @@ def run_node(make: Callable[[], Any], args: Sequence[str] | None = None, name: s
         stop.set()
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    os.environ.setdefault("RMW_FASTRTPS_PUBLICATION_MODE", PUBLICATION_MODE)
     rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     executor = None
@@ -71,8 +90,10 @@ def run_node(make: Callable[[], Any], args: Sequence[str] | None = None, name: s
             return 2
         executor = EventsExecutor()
         executor.add_node(node)
+        service = getattr(node, "service", None)
         while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=poll)
+            wait = poll if service is None else min(max(service(), 0.0), poll)
+            executor.spin_once(timeout_sec=wait)
             exit_code = getattr(node, "exit_code", None)
             if exit_code is not None:
                 code = int(exit_code)
@@ -87,6 +108,21 @@ def run_node(make: Callable[[], Any], args: Sequence[str] | None = None, name: s
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        get_default_context().destroy()  # the DDS participant goes now: its peers see it leave
         for s, handler in previous.items():
             signal.signal(s, handler)
     return code
+
+
+def exit_process(code: int) -> None:
+    """End the process now with ``code``: flush stdout and stderr, skip the interpreter's finalization.
+
+    For a node's console entry point, after :func:`run_node` returned (every
+    ROS entity, the executor and the context are destroyed by then).
+    """
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)

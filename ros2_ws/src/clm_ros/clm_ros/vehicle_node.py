@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import copy
 import sys
-import threading
 import time
 from array import array
 from collections import deque
@@ -80,7 +79,7 @@ from clm_core.params import load_model, load_params_file
 from clm_core.settings import setting
 from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
-from clm_ros.node_main import run_node
+from clm_ros.node_main import exit_process, run_node
 from clm_ros.parameters import declare_settings
 
 NODE_NAME = "clm_vehicle_node"
@@ -139,7 +138,14 @@ class Counts:
 
 
 class VehicleNode(LifecycleNode):
-    """Lifecycle node publishing the wheel loads of clm_core vehicles, one train after another."""
+    """Lifecycle node publishing the wheel loads of clm_core vehicles, one train after another.
+
+    Everything runs in the thread that spins the node: :meth:`service` (called
+    by :func:`clm_ros.node_main.run_node` between two turns of the executor)
+    publishes the message that is due, computes the next one and says how
+    long the executor may wait for answers until then. No second thread, so
+    no lock and no hand-over of the interpreter between threads per message.
+    """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -150,9 +156,6 @@ class VehicleNode(LifecycleNode):
         declare_settings(self, ("autostart",), read_only=True)
         #: None while the process should run; a number ends it with that exit code (clm_ros.node_main)
         self.exit_code: int | None = None
-        self.lock = threading.Lock()
-        self._halt = threading.Event()
-        self._worker: threading.Thread | None = None
         self._template: StreamingVehicle | None = None
         self.vehicle: StreamingVehicle | None = None
         self._pub: Any = None
@@ -168,7 +171,20 @@ class VehicleNode(LifecycleNode):
         self.state_text = "unconfigured"
         self.level = DiagnosticStatus.OK
         self._recent_lags: deque[float] = deque(maxlen=2000)
-        self._last_answer = 0.0
+        self._phase = "idle"  # idle, wait, run, answers, pause, done, stopped
+        self._number = 0  # the current train (1-based)
+        self._k = 0  # the next message of the train
+        self._deadline = 0  # monotonic ns of the next action
+        self._wait_since = 0
+        self._warned = False
+        self._next_start = 0
+        self._started = 0
+        self._sim_ns = 0
+        self._base_ns = 0
+        self._start_ns = 0
+        self._data = b""
+        self._t_ns = 0
+        self._last_answer = 0
         self._silent = False
         self._model_error = ""
         if self.get_parameter("autostart").value:
@@ -231,18 +247,19 @@ class VehicleNode(LifecycleNode):
         self.speeds = np.full(self.n_wheels, self.speed)
         self.max_delay_steps = int(float(g("max_feedback_delay")) / sim.dt)
         self.closed_loop = bool(g("closed_loop"))
+        self.frame_id = str(g("frame_id"))
+        self.answer_timeout_ns = int(float(g("answer_timeout")) * NS)
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:
         ret = super().on_activate(state)
-        self._halt.clear()
-        self._worker = threading.Thread(target=self._schedule, name="clm_vehicle_trains", daemon=True)
-        self._worker.start()
+        self._number = 0
+        self._next_start = time.monotonic_ns()
+        self._begin_wait()
         self._diag_timer = self.create_timer(float(self.p("diagnostics_period")), self._publish_diagnostics)
         return ret
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
-        self._stop_worker()
-        self._set_state("inactive", DiagnosticStatus.OK)
+        self._halt("inactive")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
@@ -252,13 +269,12 @@ class VehicleNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: State) -> TransitionCallbackReturn:
-        self._stop_worker()
+        self._halt("finalized")
         self._drop_entities()
-        self._set_state("finalized", DiagnosticStatus.OK)
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: State) -> TransitionCallbackReturn:
-        self._stop_worker()
+        self._halt("unconfigured")
         self._drop_entities()
         return TransitionCallbackReturn.SUCCESS
 
@@ -270,190 +286,215 @@ class VehicleNode(LifecycleNode):
             self.destroy_subscription(self._sub)
         self._pub = self._clock_pub = self._sub = None
 
-    def _stop_worker(self) -> None:
-        self._halt.set()
-        if self._worker is not None:
-            self._worker.join(timeout=1.5)
-            self._worker = None
+    def _halt(self, state: str) -> None:
+        """Stop the schedule (the train that runs is reported as stopped)."""
+        if self._phase in ("run", "answers"):
+            self._finish_train(stopped=True)
+        self._phase = "idle"
         if self._diag_timer is not None:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = None
+        self._set_state(state, DiagnosticStatus.OK)
 
     def stop(self) -> None:
-        """Stop the trains (the process is ending: SIGINT, SIGTERM or ``exit_when_done``)."""
-        self._stop_worker()
+        """The process is ending (SIGINT, SIGTERM or ``exit_when_done``): stop the schedule."""
+        self._halt("stopped")
 
     def _set_state(self, text: str, level: int) -> None:
         self.state_text, self.level = text, level
 
-    # ------------------------------------------------------------------ the schedule (worker thread)
+    # ------------------------------------------------------------------ the schedule
 
-    def _schedule(self) -> None:
-        trains = int(self.p("trains"))
-        headway = float(self.p("headway"))
-        pause = float(self.p("train_pause"))
-        next_start = time.monotonic()
-        sim_ns = 0
-        i = 0
+    def service(self) -> float:
+        """Do what is due now; return how long the executor may wait for other work until the next action [s]."""
         try:
-            while not self._halt.is_set() and (trains == 0 or i < trains):
-                if i:
-                    self._set_state(f"pause before train {i + 1}", self.level)
-                    if self._halt.wait(max(next_start - time.monotonic(), 0.0)):
-                        return
-                if not self._wait_for_track(i + 1):
-                    return
-                started = time.monotonic()
-                sim_ns = self._run_train(i + 1, sim_ns)
-                i += 1
-                if self._halt.is_set():
-                    return
-                self.trains_done += 1
-                next_start = max(started + headway, time.monotonic() + pause)
-                sim_ns += int(round(pause * NS))
-            self._set_state(f"done: {i} train(s)", self.level)
+            phase = self._phase
+            if phase == "run":
+                return self._serve_train()
+            if phase == "wait":
+                return self._serve_wait()
+            if phase == "answers":
+                return self._serve_answers()
+            if phase == "pause":
+                wait = self._next_start - time.monotonic_ns()
+                if wait <= 0:
+                    self._begin_wait()
+                    return 0.0
+                return wait / NS
+        except Exception as exc:  # a failed train ends the schedule; the node stays up and says why
+            self._model_error = str(exc)
+            self._phase = "stopped"
+            self._set_state(f"stopped: {exc}", DiagnosticStatus.ERROR)
+            self.get_logger().error(f"train {self._number} stopped: {exc}")
+            self._publish_diagnostics()
+        return 0.1
+
+    def _begin_wait(self) -> None:
+        trains = int(self.p("trains"))
+        if trains and self._number >= trains:
+            self._phase = "done"
+            self._set_state(f"done: {self._number} train(s)", self.level)
             self._publish_diagnostics()
             if self.p("exit_when_done"):
                 self.exit_code = 0
-        except Exception as exc:  # a failed train ends the schedule; the node stays up and says why
-            self._model_error = str(exc)
-            self._set_state(f"stopped: {exc}", DiagnosticStatus.ERROR)
-            self.get_logger().error(f"train stopped: {exc}")
-            self._publish_diagnostics()
+            return
+        self._phase = "wait"
+        self._wait_since = time.monotonic_ns()
+        self._warned = False
+        self._set_state(f"train {self._number + 1}: waiting for {self.p('track_node') or 'a subscriber'}",
+                        self.level)
 
     def _track_ready(self) -> bool:
+        """The track node is active and subscribed: its subscription and answering publisher matched."""
         pub, sub = self._pub, self._sub
         if pub is None or sub is None or pub.get_subscription_count() < int(self.p("wait_for_subscribers")):
             return False
         name = str(self.p("track_node"))
         if not name:
             return True
+        if sub.get_publisher_count() < 1:
+            return False
         readers = self.get_subscriptions_info_by_topic(pub.topic_name)
         writers = self.get_publishers_info_by_topic(sub.topic_name)
-        return (sub.get_publisher_count() >= 1 and any(r.node_name == name for r in readers)
-                and any(w.node_name == name for w in writers))
+        return any(r.node_name == name for r in readers) and any(w.node_name == name for w in writers)
 
-    def _wait_for_track(self, number: int) -> bool:
-        """Wait (no fixed sleep) until the track node is active and subscribed; False when halted or given up."""
-        t0 = time.monotonic()
+    def _serve_wait(self) -> float:
+        if self._track_ready():
+            if self._warned:
+                self.get_logger().info(f"{self.p('track_node') or 'a subscriber'} is there: train "
+                                       f"{self._number + 1} starts")
+            self._start_train()
+            return self._serve_train()
         timeout = float(self.p("discovery_timeout"))
-        who = self.p("track_node") or "a subscriber"
-        self._set_state(f"train {number}: waiting for {who}", self.level)
-        warned = False
-        while not self._halt.is_set():
-            if self._track_ready():
-                if warned:
-                    self.get_logger().info(f"{who} is there: train {number} starts")
-                return True
-            if not warned and time.monotonic() - t0 > timeout:
-                warned = True
-                self._set_state(f"train {number}: waiting for {who} for more than {timeout:g} s",
-                                DiagnosticStatus.WARN)
-                self.get_logger().error(
-                    f"no {who} (active, subscribed to {self._pub.topic_name}, publishing "
-                    f"{self._sub.topic_name}) and {self.p('wait_for_subscribers')} matched reader(s) after "
-                    f"{timeout:g} s" + ("" if not self.p("exit_when_done") else ": giving up"))
-                if self.p("exit_when_done"):
-                    self.exit_code = 3
-                    return False
-            self._halt.wait(0.01)
-        return False
+        if not self._warned and time.monotonic_ns() - self._wait_since > timeout * NS:
+            self._warned = True
+            who = self.p("track_node") or "a subscriber"
+            self._set_state(f"train {self._number + 1}: waiting for {who} for more than {timeout:g} s",
+                            DiagnosticStatus.WARN)
+            self.get_logger().error(
+                f"no {who} (active, subscribed to {self._pub.topic_name}, publishing {self._sub.topic_name}) and "
+                f"{self.p('wait_for_subscribers')} matched reader(s) after {timeout:g} s"
+                + (": giving up" if self.p("exit_when_done") else "; still waiting"))
+            if self.p("exit_when_done"):
+                self.exit_code = 3
+                self._phase = "stopped"
+        return 0.01
 
-    def _run_train(self, number: int, sim_base: int) -> int:
-        """One train in real time; return the simulation stamp after it [ns] (``publish_clock``)."""
+    def _start_train(self) -> None:
         assert self._template is not None
-        veh = copy.deepcopy(self._template)
-        log = self.get_logger()
-        counts = Counts()
-        with self.lock:
-            self.finished = self.finished + self.train
-            self.train = counts
-            self.sent.clear()
-            self.vehicle = veh
+        self._number += 1
+        self.finished = self.finished + self.train
+        self.train = Counts()
+        self.sent.clear()
+        self.vehicle = copy.deepcopy(self._template)
         self._recent_lags.clear()
         self._silent = False
-        self._set_state(f"train {number}: running", DiagnosticStatus.OK)
-        clock = self._clock_pub
-        base_ns = sim_base if clock is not None else self.get_clock().now().nanoseconds
-        frame = str(self.p("frame_id"))
-        answer_timeout = float(self.p("answer_timeout"))
-        period = self.period_ns
-        start = time.monotonic_ns()
-        self._last_answer = time.monotonic()
-        t_ns = base_ns
-        for k in range(self.n_messages):
-            if self._halt.is_set():
+        self._set_state(f"train {self._number}: running", DiagnosticStatus.OK)
+        self._started = time.monotonic_ns()
+        self._base_ns = self._sim_ns if self._clock_pub is not None else self.get_clock().now().nanoseconds
+        self._start_ns = time.monotonic_ns()
+        self._last_answer = self._start_ns
+        self._k = 0
+        self._prepare(0)
+        self._phase = "run"
+        self.get_logger().info(f"train {self._number} starts: {self.n_messages} messages")
+
+    def _prepare(self, k: int) -> None:
+        """Compute message ``k``: the vehicle advanced to its time, its bytes."""
+        veh = self.vehicle
+        assert veh is not None
+        c0 = time.thread_time()
+        P = veh.P.copy() if k == 0 else veh.advance(self.substeps)
+        self.train.model_cpu_s += time.thread_time() - c0
+        self.train.model_messages += 1
+        self._t_ns = self._base_ns + k * self.period_ns
+        self._data = encode_wheel_loads(self._t_ns, self.frame_id, self.ids, veh.x, P, self.speeds)
+        self._deadline = self._start_ns + k * self.period_ns
+
+    def _serve_train(self) -> float:
+        now = time.monotonic_ns()
+        if now < self._deadline:
+            return (self._deadline - now) / NS
+        c = self.train
+        if now - self._deadline > 2 * self.period_ns:
+            c.late += 1
+        veh = self.vehicle
+        assert veh is not None
+        self.sent[self._t_ns] = (veh.k, self._deadline)
+        try:
+            if self._clock_pub is not None:
+                self._clock_pub.publish(Clock(clock=Time(nanoseconds=self._t_ns).to_msg()))
+            self._pub.publish(self._data)
+            c.published += 1
+        except Exception as exc:  # never dies on a publish (a vanished peer, a context going down)
+            c.publish_failed += 1
+            if c.publish_failed == 1:
+                self.get_logger().warning(f"publish failed (counted, the train goes on): {exc}")
+        self._k += 1
+        if (self._k & 63) == 0:
+            self._watch_answers(now)
+        if self._k >= self.n_messages:
+            c.contact_lost_steps = veh.contact_lost_steps
+            self._phase = "answers"
+            self._deadline = now + int(float(self.p("ack_timeout")) * NS)
+            return 0.0
+        self._prepare(self._k)
+        return max(self._deadline - time.monotonic_ns(), 0) / NS
+
+    def _watch_answers(self, now: int) -> None:
+        old = now - int(FORGET_AFTER * NS)
+        sent = self.sent
+        while sent:
+            first = next(iter(sent))
+            if sent[first][1] >= old:
                 break
-            c0 = time.thread_time()
-            with self.lock:
-                P = veh.P.copy() if k == 0 else veh.advance(self.substeps)
-                x = veh.positions()
-            counts.model_cpu_s += time.thread_time() - c0
-            counts.model_messages += 1
-            t_ns = base_ns + k * period
-            data = encode_wheel_loads(t_ns, frame, self.ids, x, P, self.speeds)
-            due = start + k * period
-            wait = (due - time.monotonic_ns()) / NS
-            if wait > 0:
-                self._halt.wait(wait)
-            elif -wait > 2 * period / NS:
-                counts.late += 1
-            with self.lock:
-                self.sent[t_ns] = (veh.k, due)
-            try:
-                if clock is not None:
-                    clock.publish(Clock(clock=Time(nanoseconds=t_ns).to_msg()))
-                self._pub.publish(data)
-                counts.published += 1
-            except Exception as exc:  # never dies on a publish (a vanished peer, a context going down)
-                counts.publish_failed += 1
-                if counts.publish_failed == 1:
-                    log.warning(f"publish failed (counted, the train goes on): {exc}")
-            if (k & 63) == 0:
-                self._watch_answers(answer_timeout)
-        counts.contact_lost_steps = veh.contact_lost_steps
-        self._await_answers(counts)
-        self._report(number, counts)
-        return t_ns
-
-    def _watch_answers(self, answer_timeout: float) -> None:
-        now = time.monotonic()
-        with self.lock:
-            old = now - FORGET_AFTER
-            while self.sent:
-                first = next(iter(self.sent))
-                if self.sent[first][1] / NS >= old:
-                    break
-                del self.sent[first]
-        if not self._silent and now - self._last_answer > answer_timeout:
+            del sent[first]
+        if not self._silent and now - self._last_answer > self.answer_timeout_ns:
             self._silent = True
-            self._set_state(self.state_text + f" (no answer for {answer_timeout:g} s)", DiagnosticStatus.WARN)
+            self._set_state(self.state_text + f" (no answer for {self.answer_timeout_ns / NS:g} s)",
+                            DiagnosticStatus.WARN)
             self.get_logger().warning(
-                f"no answer from the track node for {answer_timeout:g} s (it may have died): the train goes on "
-                "on its predictor alone, and uses the answers again when they return")
+                f"no answer from the track node for {self.answer_timeout_ns / NS:g} s (it may have died): the train "
+                "goes on on its predictor alone, and uses the answers again when they return")
 
-    def _await_answers(self, counts: Counts) -> None:
-        t1 = time.monotonic()
-        timeout = float(self.p("ack_timeout"))
-        while self.sent and not self._halt.is_set() and time.monotonic() - t1 < timeout:
-            self._halt.wait(0.005)
-        with self.lock:
-            self.sent.clear()
+    def _serve_answers(self) -> float:
+        if self.sent and time.monotonic_ns() < self._deadline:
+            return 0.005
+        self._finish_train(stopped=False)
+        return 0.0
 
-    def _report(self, number: int, c: Counts) -> None:
+    def _finish_train(self, stopped: bool) -> None:
+        c = self.train
+        if self.vehicle is not None:
+            c.contact_lost_steps = self.vehicle.contact_lost_steps
+        self.sent.clear()
+        self._report(self._number, c, stopped)
+        if stopped:
+            return
+        self.trains_done += 1
+        self._next_start = max(self._started + int(float(self.p("headway")) * NS),
+                               time.monotonic_ns() + int(float(self.p("train_pause")) * NS))
+        self._sim_ns = self._t_ns + int(round(float(self.p("train_pause")) * NS))
+        self._phase = "pause"
+        self._set_state(f"train {self._number} done", self.level)
+        self._publish_diagnostics(final=self._number)
+        trains = int(self.p("trains"))
+        if trains and self._number >= trains:
+            self._begin_wait()  # the schedule is complete: done
+
+    def _report(self, number: int, c: Counts, stopped: bool) -> None:
         lag = c.lag_figures()
         used = 100.0 * c.used / c.published if c.published else 0.0
         self.get_logger().info(
-            f"train {number}: published {c.published} wheel-load messages at {self.p('rate')} Hz ({c.late} late "
-            f"by > 2 periods), {c.answered} answered ({c.used} used as feedback, {c.stale} too late); contact "
-            f"lost in {c.contact_lost_steps} wheel-steps; vehicle model {c.model_us():.0f} us per message; "
-            f"feedback {used:.1f} %, answer lag median {1e3 * lag['lag_median_s']:.2f} ms, p99 "
-            f"{1e3 * lag['lag_p99_s']:.2f} ms, max {1e3 * lag['lag_max_s']:.2f} ms"
+            f"train {number}{' (stopped)' if stopped else ''}: published {c.published} wheel-load messages at "
+            f"{self.p('rate')} Hz ({c.late} late by > 2 periods), {c.answered} answered ({c.used} used as "
+            f"feedback, {c.stale} too late); contact lost in {c.contact_lost_steps} wheel-steps; vehicle model "
+            f"{c.model_us():.0f} us per message; feedback {used:.1f} %, answer lag median "
+            f"{1e3 * lag['lag_median_s']:.2f} ms, p99 {1e3 * lag['lag_p99_s']:.2f} ms, max "
+            f"{1e3 * lag['lag_max_s']:.2f} ms"
         )
-        self._set_state(f"train {number} done", self.level)
-        self._publish_diagnostics(final=number)
 
-    # ------------------------------------------------------------------ answers (executor thread)
+    # ------------------------------------------------------------------ answers
 
     def _on_response(self, raw: bytes) -> None:
         now = time.monotonic_ns()
@@ -463,37 +504,36 @@ class VehicleNode(LifecycleNode):
         except MessageError:
             c.malformed += 1
             return
-        with self.lock:
-            entry = self.sent.pop(d.stamp_ns, None)
-            veh = self.vehicle
-            if entry is None or veh is None:
-                c.unmatched += 1
-                return
-            step, due = entry
-            c.answered += 1
-            lag = (now - due) / NS
-            c.lags.append(lag)
-            self._recent_lags.append(lag)
-            self._last_answer = now / NS
-            if self._silent:
-                self._silent = False
-                self.get_logger().info("the track node answers again: its answers are used as feedback again")
-                if self.level == DiagnosticStatus.WARN:
-                    self._set_state(self.state_text.split(" (no answer")[0], DiagnosticStatus.OK)
-            if not self.closed_loop:
-                return
-            if veh.k - step > self.max_delay_steps:
-                c.stale += 1
-                return
-            ids = d.wheel_id
-            w = np.full(self.n_wheels, np.nan)
-            if ids.size and int(ids.max()) < self.n_wheels:
-                w[ids] = d.rail_deflection
-            try:
-                veh.set_track_response(step, w)
-                c.used += 1
-            except ClmError as exc:
-                self.get_logger().warning(f"track answer not used (counted): {exc}", once=True)
+        entry = self.sent.pop(d.stamp_ns, None)
+        veh = self.vehicle
+        if entry is None or veh is None:
+            c.unmatched += 1
+            return
+        step, due = entry
+        c.answered += 1
+        lag = (now - due) / NS
+        c.lags.append(lag)
+        self._recent_lags.append(lag)
+        self._last_answer = now
+        if self._silent:
+            self._silent = False
+            self.get_logger().info("the track node answers again: its answers are used as feedback again")
+            if self.level == DiagnosticStatus.WARN:
+                self._set_state(self.state_text.split(" (no answer")[0], DiagnosticStatus.OK)
+        if not self.closed_loop or self._phase != "run":  # after the last step an answer feeds nothing
+            return
+        if veh.k - step > self.max_delay_steps:
+            c.stale += 1
+            return
+        ids = d.wheel_id
+        w = np.full(self.n_wheels, np.nan)
+        if ids.size and int(ids.max()) < self.n_wheels:
+            w[ids] = d.rail_deflection
+        try:
+            veh.set_track_response(step, w)
+            c.used += 1
+        except ClmError as exc:
+            self.get_logger().warning(f"track answer not used (counted): {exc}", once=True)
 
     # ------------------------------------------------------------------ diagnostics
 
@@ -507,14 +547,14 @@ class VehicleNode(LifecycleNode):
         values: dict[str, Any] = {
             "state": self.state_text,
             "trains_done": self.trains_done,
+            "train": self._number,
             "train.published": c.published,
             "train.answered": c.answered,
             "train.feedback_used": c.used,
             "train.feedback_total": c.published,
             "train.too_late": c.stale,
             "train.late_publishes": c.late,
-            "train.contact_lost_steps": c.contact_lost_steps or (self.vehicle.contact_lost_steps
-                                                                  if self.vehicle is not None else 0),
+            "train.contact_lost_steps": self.vehicle.contact_lost_steps if self.vehicle is not None else 0,
             "train.model_us_per_message": f"{c.model_us():.1f}",
             "recent_lag_median_s": f"{float(np.median(lags)):.6f}",
             "recent_lag_p99_s": f"{float(np.percentile(lags, 99)):.6f}",
@@ -530,9 +570,7 @@ class VehicleNode(LifecycleNode):
         if final:
             values["final_train"] = final
             values.update({f"train.{k}": f"{v:.6f}" for k, v in c.lag_figures().items()})
-        level = self.level
-        if self._model_error:
-            level = DiagnosticStatus.ERROR
+        level = DiagnosticStatus.ERROR if self._model_error else self.level
         status = DiagnosticStatus(
             level=level, name=f"{self.get_fully_qualified_name()}: vehicle simulator", message=self.state_text,
             hardware_id="clm_core", values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
@@ -546,8 +584,11 @@ class VehicleNode(LifecycleNode):
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """Console entry point ``vehicle_node``."""
-    return run_node(VehicleNode, args, NODE_NAME)
+    """Console entry point ``vehicle_node``: run the node until SIGINT, SIGTERM or its last train; exit."""
+    code = run_node(VehicleNode, args, NODE_NAME)
+    if args is None:  # a process of its own (not called from Python code)
+        exit_process(code)
+    return code
 
 
 if __name__ == "__main__":
