@@ -79,7 +79,7 @@ from clm_core.params import load_model, load_params_file
 from clm_core.settings import setting
 from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
-from clm_ros.node_main import exit_process, run_node
+from clm_ros.node_main import exit_process, freeze_heap, run_node
 from clm_ros.parameters import declare_settings
 
 NODE_NAME = "clm_vehicle_node"
@@ -108,6 +108,7 @@ class Counts:
     answered: int = 0
     used: int = 0
     stale: int = 0
+    after_end: int = 0
     unmatched: int = 0
     malformed: int = 0
     late: int = 0
@@ -161,8 +162,9 @@ class VehicleNode(LifecycleNode):
         self._pub: Any = None
         self._clock_pub: Any = None
         self._sub: Any = None
-        self._diag_timer: Any = None
+        # one /diagnostics publisher and timer for the node's life, in every state
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._diag_timer = self.create_timer(float(self.p("diagnostics_period")), self._publish_diagnostics)
         #: stamp [ns] -> (vehicle step, due time [monotonic ns]) of the messages not answered yet
         self.sent: dict[int, tuple[int, int]] = {}
         self.train = Counts()
@@ -172,7 +174,8 @@ class VehicleNode(LifecycleNode):
         self.level = DiagnosticStatus.OK
         self._recent_lags: deque[float] = deque(maxlen=2000)
         self._phase = "idle"  # idle, wait, run, answers, pause, done, stopped
-        self._number = 0  # the current train (1-based)
+        self._number = 0  # the current train (1-based, over the node's life)
+        self._first_of_activation = 0
         self._k = 0  # the next message of the train
         self._deadline = 0  # monotonic ns of the next action
         self._wait_since = 0
@@ -212,6 +215,7 @@ class VehicleNode(LifecycleNode):
         self._sub = self.create_subscription(WheelRailResponse, "wheel_rail_response", self._on_response, DATA_QOS,
                                              qos_overriding_options=qos, raw=True)
         self._set_state("configured", DiagnosticStatus.OK)
+        freeze_heap()  # the run's objects live until cleanup: no full collection of them during a train
         self.get_logger().info(
             f"configured: {self.p('vehicle')} ({self.n_wheels} wheels) at {self.speed:g} m/s, {self.p('duration'):g} s "
             f"per train at {self.p('rate'):g} Hz, {self.substeps} steps of {self.dt:g} s per message; trains: "
@@ -252,10 +256,9 @@ class VehicleNode(LifecycleNode):
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:
         ret = super().on_activate(state)
-        self._number = 0
+        self._first_of_activation = self._number  # trains are numbered over the node's life
         self._next_start = time.monotonic_ns()
         self._begin_wait()
-        self._diag_timer = self.create_timer(float(self.p("diagnostics_period")), self._publish_diagnostics)
         return ret
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
@@ -291,14 +294,12 @@ class VehicleNode(LifecycleNode):
         if self._phase in ("run", "answers"):
             self._finish_train(stopped=True)
         self._phase = "idle"
-        if self._diag_timer is not None:
-            self.destroy_timer(self._diag_timer)
-            self._diag_timer = None
         self._set_state(state, DiagnosticStatus.OK)
+        self._publish_diagnostics()
 
     def stop(self) -> None:
         """The process is ending (SIGINT, SIGTERM or ``exit_when_done``): stop the schedule."""
-        self._halt("stopped")
+        self._halt(self.state_text if self._phase == "done" else "stopped")
 
     def _set_state(self, text: str, level: int) -> None:
         self.state_text, self.level = text, level
@@ -331,9 +332,9 @@ class VehicleNode(LifecycleNode):
 
     def _begin_wait(self) -> None:
         trains = int(self.p("trains"))
-        if trains and self._number >= trains:
+        if trains and self._number - self._first_of_activation >= trains:
             self._phase = "done"
-            self._set_state(f"done: {self._number} train(s)", self.level)
+            self._set_state(f"done: {trains} train(s)", self.level)
             self._publish_diagnostics()
             if self.p("exit_when_done"):
                 self.exit_code = 0
@@ -479,7 +480,7 @@ class VehicleNode(LifecycleNode):
         self._set_state(f"train {self._number} done", self.level)
         self._publish_diagnostics(final=self._number)
         trains = int(self.p("trains"))
-        if trains and self._number >= trains:
+        if trains and self._number - self._first_of_activation >= trains:
             self._begin_wait()  # the schedule is complete: done
 
     def _report(self, number: int, c: Counts, stopped: bool) -> None:
@@ -488,10 +489,10 @@ class VehicleNode(LifecycleNode):
         self.get_logger().info(
             f"train {number}{' (stopped)' if stopped else ''}: published {c.published} wheel-load messages at "
             f"{self.p('rate')} Hz ({c.late} late by > 2 periods), {c.answered} answered ({c.used} used as "
-            f"feedback, {c.stale} too late); contact lost in {c.contact_lost_steps} wheel-steps; vehicle model "
-            f"{c.model_us():.0f} us per message; feedback {used:.1f} %, answer lag median "
-            f"{1e3 * lag['lag_median_s']:.2f} ms, p99 {1e3 * lag['lag_p99_s']:.2f} ms, max "
-            f"{1e3 * lag['lag_max_s']:.2f} ms"
+            f"feedback, {c.stale} too late, {c.after_end} after the last step); contact lost in {c.contact_lost_steps} wheel-steps; vehicle model "
+            f"{c.model_us():.0f} us per message; feedback {used:.1f} %, "
+            + (f"answer lag median {1e3 * lag['lag_median_s']:.2f} ms, p99 {1e3 * lag['lag_p99_s']:.2f} ms, max "
+               f"{1e3 * lag['lag_max_s']:.2f} ms" if c.answered else "no answer")
         )
 
     # ------------------------------------------------------------------ answers
@@ -520,7 +521,10 @@ class VehicleNode(LifecycleNode):
             self.get_logger().info("the track node answers again: its answers are used as feedback again")
             if self.level == DiagnosticStatus.WARN:
                 self._set_state(self.state_text.split(" (no answer")[0], DiagnosticStatus.OK)
-        if not self.closed_loop or self._phase != "run":  # after the last step an answer feeds nothing
+        if self._phase != "run":  # after the last step an answer feeds nothing
+            c.after_end += 1
+            return
+        if not self.closed_loop:
             return
         if veh.k - step > self.max_delay_steps:
             c.stale += 1
@@ -553,6 +557,7 @@ class VehicleNode(LifecycleNode):
             "train.feedback_used": c.used,
             "train.feedback_total": c.published,
             "train.too_late": c.stale,
+            "train.after_last_step": c.after_end,
             "train.late_publishes": c.late,
             "train.contact_lost_steps": self.vehicle.contact_lost_steps if self.vehicle is not None else 0,
             "train.model_us_per_message": f"{c.model_us():.1f}",
