@@ -27,16 +27,16 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-import rclpy  # noqa: E402
-from clm_msgs.msg import SleeperResponse, WheelLoads  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from lifecycle_msgs.msg import Transition  # noqa: E402
-from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.experimental import EventsExecutor  # noqa: E402
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+import rclpy
+from clm_msgs.msg import SleeperResponse, WheelLoads
+from diagnostic_msgs.msg import DiagnosticArray
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from rclpy.context import Context
+from rclpy.experimental import EventsExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from clm_core.io.timebase import NS  # noqa: E402
+from clm_core.io.timebase import NS
 
 START = 120.0  # a node process importing numba, building its model, discovering, on a loaded machine [s]
 QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
