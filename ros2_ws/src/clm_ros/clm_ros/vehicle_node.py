@@ -489,8 +489,9 @@ class VehicleNode(LifecycleNode):
         self.get_logger().info(
             f"train {number}{' (stopped)' if stopped else ''}: published {c.published} wheel-load messages at "
             f"{self.p('rate')} Hz ({c.late} late by > 2 periods), {c.answered} answered ({c.used} used as "
-            f"feedback, {c.stale} too late, {c.after_end} after the last step); contact lost in {c.contact_lost_steps} wheel-steps; vehicle model "
-            f"{c.model_us():.0f} us per message; feedback {used:.1f} %, "
+            f"feedback, {c.stale} too late, {c.after_end} after the last step); contact lost in "
+            f"{c.contact_lost_steps} wheel-steps; vehicle model {c.model_us():.0f} us per message; feedback "
+            f"{used:.1f} %, "
             + (f"answer lag median {1e3 * lag['lag_median_s']:.2f} ms, p99 {1e3 * lag['lag_p99_s']:.2f} ms, max "
                f"{1e3 * lag['lag_max_s']:.2f} ms" if c.answered else "no answer")
         )
