@@ -49,6 +49,7 @@ from typing import Any
 
 import pytest
 import yaml
+from clm_ros.processes import ros_args
 
 REPO = Path(__file__).resolve().parents[2]
 WS = REPO / "ros2_ws"
@@ -263,7 +264,7 @@ def test_demo_launch_file(monkeypatch: pytest.MonkeyPatch) -> None:
     assert set(nodes) == {"track_node", "vehicle_node"}
     assert nodes["track_node"].kwargs["name"] == TRACK_NODE and nodes["vehicle_node"].kwargs["name"] == VEHICLE_NODE
     assert {TRACK_NODE, VEHICLE_NODE} <= set(demo_params())
-    assert _params(nodes["track_node"]) == (str(CONFIG), {"use_sim_time": False})
+    assert _params(nodes["track_node"]) == (str(CONFIG), {"use_sim_time": False, "monitored_sleepers": "100,200,300"})
     # one train, then the vehicle exits and the launch ends; it waits for the track node only
     assert _params(nodes["vehicle_node"]) == (str(CONFIG), {"use_sim_time": False, "trains": 1, "exit_when_done": True,
                                                             "wait_for_subscribers": 1, "publish_clock": False})
@@ -277,7 +278,8 @@ def test_demo_launch_file(monkeypatch: pytest.MonkeyPatch) -> None:
                        speed="44.4", trains="3", sleeper_response_topic="answers")
         nodes = _nodes(actions)
         assert nodes["vehicle_node"].kwargs["namespace"] == nodes["track_node"].kwargs["namespace"] == prefix
-        assert _params(nodes["track_node"])[1] == {"soil": "haren", "use_sim_time": True}
+        assert _params(nodes["track_node"])[1] == {"soil": "haren", "use_sim_time": True,
+                                                   "monitored_sleepers": "100,200,300"}
         assert _params(nodes["vehicle_node"])[1] == {
             "soil": "haren", "use_sim_time": False, "vehicle": "intercity", "speed": 44.4, "trains": 3,
             "exit_when_done": True, "wait_for_subscribers": 2, "publish_clock": True}
@@ -287,7 +289,8 @@ def test_demo_launch_file(monkeypatch: pytest.MonkeyPatch) -> None:
         cmd = rec.kwargs["cmd"]
         assert cmd[:3] == ["ros2", "bag", "record"] and "--use-sim-time" in cmd
         assert cmd[cmd.index("--topics") + 1:] == [f"{prefix}/wheel_loads", f"{prefix}/answers",
-                                                   f"{prefix}/wheel_rail_response", "/diagnostics"]
+                                                   f"{prefix}/wheel_rail_response", f"{prefix}/monitored_sleepers",
+                                                   f"{prefix}/track_markers", "/diagnostics"]
     # the demo defaults
     p = demo_params()
     assert p[VEHICLE_NODE]["vehicle"] == "thalys" and p[VEHICLE_NODE]["speed"] == pytest.approx(83.33)
@@ -318,6 +321,70 @@ def test_replay_launch_file(monkeypatch: pytest.MonkeyPatch) -> None:
                                  "--use-sim-time", "--topics", "/line1/wheel_loads", "/line1/sleeper_response",
                                  "/line1/wheel_rail_response", "/diagnostics"]
     assert _params(_nodes(actions)["track_node"])[1] == {"use_sim_time": True}
+
+
+def _field_type(ts: Any, msgtype: str, path: str) -> str:
+    """Walk a Foxglove message path (``wheels[0].force``) through a type; the leaf's type name."""
+    from rosbags.typesys.base import Nodetype
+
+    current = ("msg", msgtype)
+    for part in path.split("."):
+        name, _, index = part.partition("[")
+        assert current[0] == "msg", f"{path}: {name} below a {current}"
+        fields = dict(ts.fielddefs[current[1]][1])
+        assert name in fields, f"{path}: {current[1]} has no field {name!r} ({sorted(fields)})"
+        kind, detail = fields[name]
+        if kind in (Nodetype.SEQUENCE, Nodetype.ARRAY):
+            assert index, f"{path}: {name} is a sequence, give an index"
+            kind, detail = detail[0]
+        else:
+            assert not index, f"{path}: {name} is not a sequence"
+        leaf = str(detail[0] if kind == Nodetype.BASE else detail)
+        current = ("msg", detail) if kind == Nodetype.NAME else ("base", leaf)
+    return current[1]
+
+
+def test_foxglove_layout_of_the_demo() -> None:
+    """config/foxglove_demo.json: a whole layout whose panels show topics the demo has, by valid message paths."""
+    from clm_ros.launch_common import DEMO_MONITORED_SLEEPERS
+    from clm_ros.launcher import TOPICS
+
+    from clm_core.io.messages import typestore
+
+    layout = json.loads((PKG / "config" / "foxglove_demo.json").read_text(encoding="utf-8"))
+    assert {"configById", "layout", "globalVariables", "userNodes", "playbackConfig"} <= set(layout)
+
+    def leaves(node: Any) -> list[str]:
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    panels = leaves(layout["layout"])
+    assert sorted(panels) == sorted(layout["configById"]), "every panel placed once, every placed panel configured"
+    ts = typestore()
+    plotted: list[str] = []
+    for pid, cfg in layout["configById"].items():
+        kind = pid.split("!")[0]
+        if kind == "Plot":
+            for p in cfg["paths"]:
+                topic, _, path = p["value"].partition(".")
+                assert topic in TOPICS, f"{pid}: {topic} is not a topic of the demo"
+                leaf = _field_type(ts, TOPICS[topic], path)
+                assert leaf in ("float64", "float32"), f"{pid}: {p['value']} is {leaf}, not a number to plot"
+                plotted.append(p["value"])
+            assert "[" in cfg["title"] and "]" in cfg["title"], f"{pid}: give the unit in the title"
+        elif kind == "3D":
+            assert set(cfg["topics"]) == {"/track_markers"} and "/track_markers" in TOPICS
+        elif kind == "DiagnosticSummary":
+            assert cfg["topicToRender"] == "/diagnostics"
+        elif kind == "RawMessages":
+            assert cfg["topicPath"] in TOPICS
+        else:
+            raise AssertionError(f"unexpected panel {pid}")
+    assert "/wheel_loads.wheels[0].force" in plotted and "/monitored_sleepers.soil_force[0]" in plotted
+    # the monitored series plotted are those the demo asks the track node for, in that order
+    titles = " ".join(cfg.get("title", "") for cfg in layout["configById"].values())
+    assert ", ".join(DEMO_MONITORED_SLEEPERS.split(",")) in titles
+    n = len(DEMO_MONITORED_SLEEPERS.split(","))
+    assert {f"/monitored_sleepers.soil_force[{i}]" for i in range(n)} <= set(plotted)
 
 
 # ---------------------------------------------------------------------------------------------- nodes + demo.yaml
@@ -460,8 +527,7 @@ def test_vehicle_node_takes_every_demo_parameter(client, ros_env: dict[str, str]
     duration = 0.2
     # one short train; no track node (any reader will do, and the answers are not waited for long)
     over = {"duration": duration, "ack_timeout": 0.5, "trains": 1, "exit_when_done": True, "track_node": ""}
-    proc = _start("clm_ros.vehicle_node", ros_env, tmp_path,
-                  *[a for k, v in over.items() for a in ("-p", f"{k}:={str(v).lower() if v is True else v or repr(v)}")])
+    proc = _start("clm_ros.vehicle_node", ros_env, tmp_path, *ros_args(over)[1:])
     procs.append(proc)
     got = c.parameters(f"/{VEHICLE_NODE}", sorted(expected))  # answered while it waits for a subscriber
     _assert_applied({**expected, **over}, got, VEHICLE_NODE)
@@ -525,7 +591,7 @@ def test_setup_cfg_script_dirs_follow_ament() -> None:
     }
     data = {dest: sorted(files) for dest, files in kw["data_files"]}
     assert data["share/clm_ros/launch"] == sorted(f"launch/{p.name}" for p in LAUNCH_FILES)
-    assert data["share/clm_ros/config"] == ["config/demo.yaml"]
+    assert data["share/clm_ros/config"] == ["config/demo.yaml", "config/foxglove_demo.json"]
     assert data["share/ament_index/resource_index/packages"] == ["resource/clm_ros"]
     for entry in console_scripts().values():
         module, func = entry.split(":")

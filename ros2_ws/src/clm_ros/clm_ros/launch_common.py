@@ -33,6 +33,12 @@ from typing import Any
 PRESETS = ("track", "soil", "model")
 #: The data topics, each with a ``<topic>_topic`` launch argument that remaps it.
 TOPICS = ("wheel_loads", "sleeper_response", "wheel_rail_response")
+#: The track node's live views (fixed per-sleeper series, the window as markers), recorded by the demo.
+LIVE_VIEWS = {"monitored_sleepers": "clm_msgs/msg/SleeperResponse",
+              "track_markers": "visualization_msgs/msg/MarkerArray"}
+#: Sleepers the demo monitors (global indices; x = 60, 120, 180 m, all passed by the demo's train): the series
+#: that config/foxglove_demo.json plots.
+DEMO_MONITORED_SLEEPERS = "100,200,300"
 
 
 def arguments(params_description: str = "ROS parameter file of the nodes") -> list[Any]:
@@ -72,8 +78,8 @@ def namespace(context: Any) -> str:
 
 
 def topic(context: Any, name: str) -> str:
-    """Full name of data topic ``name`` after the remap and in the namespace (for ``ros2 bag``)."""
-    t = value(context, f"{name}_topic")
+    """Full name of topic ``name`` after its remap (data topics) and in the namespace (for ``ros2 bag``)."""
+    t = value(context, f"{name}_topic") if name in TOPICS else name
     return t if t.startswith("/") else f"{namespace(context)}/{t}"
 
 

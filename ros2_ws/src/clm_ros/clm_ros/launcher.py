@@ -11,9 +11,12 @@
    one train of ``duration``) as separate processes; the vehicle waits until
    the track node is active and subscribed and the recorder subscribed, so
    the bag and the figures start with the first message;
-3. records ``/wheel_loads``, ``/sleeper_response``, ``/wheel_rail_response``
-   and ``/diagnostics`` to a rosbag2 bag (mcap) in the output directory
-   (:class:`clm_ros.bag_tools.BagRecorder`: raw subscriptions);
+3. records ``/wheel_loads``, ``/sleeper_response``, ``/wheel_rail_response``,
+   the track node's live views (``/monitored_sleepers``: sleepers 100, 200,
+   300; ``/track_markers``) and ``/diagnostics`` to a rosbag2 bag (mcap) in
+   the output directory (:class:`clm_ros.bag_tools.BagRecorder`: raw
+   subscriptions); ``config/foxglove_demo.json`` is a Foxglove layout of
+   these topics, live or on the bag;
 4. when the vehicle reports its train done (its ``/diagnostics``) and every
    wheel-load message has been answered, stops both nodes (SIGINT; both
    must exit 0) and renders the plots (:func:`clm_core.io.plots.plot_demo`:
@@ -52,12 +55,15 @@ from clm_core.io.report_index import write_index
 from clm_core.peaks import masked_max, peak_window
 from clm_core.progress import Progress
 from clm_ros.errors import ClmRosError
+from clm_ros.launch_common import DEMO_MONITORED_SLEEPERS, LIVE_VIEWS
 from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env, stop_processes
 
+#: What the demo records: the data topics, the track node's live views and /diagnostics.
 TOPICS = {
     "/wheel_loads": "clm_msgs/msg/WheelLoads",
     "/sleeper_response": "clm_msgs/msg/SleeperResponse",
     "/wheel_rail_response": "clm_msgs/msg/WheelRailResponse",
+    **{f"/{t}": msgtype for t, msgtype in LIVE_VIEWS.items()},
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 
@@ -167,7 +173,7 @@ def _run_demo(
     env = ros_env(dom)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     track_params = {"track": track, "soil": soil, "model": model, "dt": dt, "n_sleepers": n_sleepers,
-                    "diagnostics_period": 0.5}
+                    "diagnostics_period": 0.5, "monitored_sleepers": DEMO_MONITORED_SLEEPERS}
     # one train, then the vehicle idles until stopped here; it waits for the track node and this recorder
     vehicle_params = {
         "vehicle": vehicle, "speed": float(speed), "duration": float(duration), "rate": float(rate_hz),

@@ -26,7 +26,12 @@ wheel_rail_response_topic, log_level; and:
 vehicle, speed, duration : vehicle preset, speed [m/s], simulated time per
     train [s]; empty (the default): the parameter file's.
 trains : trains run one after another before the launch ends (default 1).
-record : also run ``ros2 bag record`` of the demo topics (default false).
+record : also run ``ros2 bag record`` of the demo topics and the track node's
+    live views (default false).
+
+The track node monitors sleepers 100, 200 and 300 (``monitored_sleepers``):
+``config/foxglove_demo.json`` is a Foxglove layout of the demo (live with
+foxglove_bridge, or on the recorded bag; docs/ros-nodes.md).
 bag : output bag directory of the recorder (default clm_demo_bag).
 """
 
@@ -43,7 +48,8 @@ VEHICLE = {"vehicle": str, "speed": float, "duration": float}
 def nodes(context):  # type: ignore[no-untyped-def]
     record = common.flag(context, "record")
     sim = common.flag(context, "use_sim_time")
-    track = common.node(context, "track_node", "clm_track_node")
+    track = common.node(context, "track_node", "clm_track_node",
+                        {"monitored_sleepers": common.DEMO_MONITORED_SLEEPERS})
     own = {k: t(common.value(context, k)) for k, t in VEHICLE.items() if common.value(context, k)}
     vehicle = common.node(context, "vehicle_node", "clm_vehicle_node", {
         **own,
@@ -57,7 +63,7 @@ def nodes(context):  # type: ignore[no-untyped-def]
     })
     out = [track, vehicle]
     if record:
-        topics = [common.topic(context, t) for t in common.TOPICS]
+        topics = [common.topic(context, t) for t in (*common.TOPICS, *common.LIVE_VIEWS)]
         out.append(ExecuteProcess(
             cmd=["ros2", "bag", "record", "--storage", "mcap", "--output", common.value(context, "bag"),
                  *(["--use-sim-time"] if sim else []), "--topics", *topics, "/diagnostics"],
