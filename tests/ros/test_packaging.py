@@ -289,8 +289,8 @@ def test_demo_launch_file(monkeypatch: pytest.MonkeyPatch) -> None:
         cmd = rec.kwargs["cmd"]
         assert cmd[:3] == ["ros2", "bag", "record"] and "--use-sim-time" in cmd
         assert cmd[cmd.index("--topics") + 1:] == [f"{prefix}/wheel_loads", f"{prefix}/answers",
-                                                   f"{prefix}/wheel_rail_response", f"{prefix}/monitored_sleepers",
-                                                   f"{prefix}/track_markers", "/diagnostics"]
+                                                   f"{prefix}/wheel_rail_response", f"{prefix}/track_markers",
+                                                   "/diagnostics"]
     # the demo defaults
     p = demo_params()
     assert p[VEHICLE_NODE]["vehicle"] == "thalys" and p[VEHICLE_NODE]["speed"] == pytest.approx(83.33)
@@ -346,8 +346,10 @@ def _field_type(ts: Any, msgtype: str, path: str) -> str:
 
 def test_foxglove_layout_of_the_demo() -> None:
     """config/foxglove_demo.json: a whole layout whose panels show topics the demo has, by valid message paths."""
-    from clm_ros.launch_common import DEMO_MONITORED_SLEEPERS
-    from clm_ros.launcher import TOPICS
+    from clm_ros.launch_common import DEMO_MONITORED_SLEEPERS, LIVE_VIEWS
+    from clm_ros.launcher import TOPICS as RECORDED
+
+    TOPICS = {**RECORDED, **{f"/{t}": msgtype for t, msgtype in LIVE_VIEWS.items()}}  # live: the monitored series too
 
     from clm_core.io.messages import typestore
 

@@ -12,11 +12,11 @@
    the track node is active and subscribed and the recorder subscribed, so
    the bag and the figures start with the first message;
 3. records ``/wheel_loads``, ``/sleeper_response``, ``/wheel_rail_response``,
-   the track node's live views (``/monitored_sleepers``: sleepers 100, 200,
-   300; ``/track_markers``) and ``/diagnostics`` to a rosbag2 bag (mcap) in
-   the output directory (:class:`clm_ros.bag_tools.BagRecorder`: raw
-   subscriptions); ``config/foxglove_demo.json`` is a Foxglove layout of
-   these topics, live or on the bag;
+   the window's markers ``/track_markers`` and ``/diagnostics`` to a rosbag2
+   bag (mcap) in the output directory (:class:`clm_ros.bag_tools.BagRecorder`:
+   raw subscriptions). The track node also publishes the fixed series of
+   sleepers 100, 200 and 300 on ``/monitored_sleepers``, for live views only
+   (``config/foxglove_demo.json`` is a Foxglove layout of the demo);
 4. when the vehicle reports its train done (its ``/diagnostics``) and every
    wheel-load message has been answered, stops both nodes (SIGINT; both
    must exit 0) and renders the plots (:func:`clm_core.io.plots.plot_demo`:
@@ -58,12 +58,13 @@ from clm_ros.errors import ClmRosError
 from clm_ros.launch_common import DEMO_MONITORED_SLEEPERS, LIVE_VIEWS
 from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env, stop_processes
 
-#: What the demo records: the data topics, the track node's live views and /diagnostics.
+#: What the demo records: the data topics, the window's markers (10 Hz) and /diagnostics. Not the monitored
+#: sleepers: one more 1-kHz topic for the recorder, and their series are in /sleeper_response (live views only).
 TOPICS = {
     "/wheel_loads": "clm_msgs/msg/WheelLoads",
     "/sleeper_response": "clm_msgs/msg/SleeperResponse",
     "/wheel_rail_response": "clm_msgs/msg/WheelRailResponse",
-    **{f"/{t}": msgtype for t, msgtype in LIVE_VIEWS.items()},
+    "/track_markers": LIVE_VIEWS["track_markers"],
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 

@@ -26,8 +26,9 @@ wheel_rail_response_topic, log_level; and:
 vehicle, speed, duration : vehicle preset, speed [m/s], simulated time per
     train [s]; empty (the default): the parameter file's.
 trains : trains run one after another before the launch ends (default 1).
-record : also run ``ros2 bag record`` of the demo topics and the track node's
-    live views (default false).
+record : also run ``ros2 bag record`` of the demo topics (as ``clm demo``
+    records them: the data topics, the window's markers, /diagnostics;
+    default false).
 
 The track node monitors sleepers 100, 200 and 300 (``monitored_sleepers``):
 ``config/foxglove_demo.json`` is a Foxglove layout of the demo (live with
@@ -63,7 +64,7 @@ def nodes(context):  # type: ignore[no-untyped-def]
     })
     out = [track, vehicle]
     if record:
-        topics = [common.topic(context, t) for t in (*common.TOPICS, *common.LIVE_VIEWS)]
+        topics = [common.topic(context, t) for t in (*common.TOPICS, "track_markers")]
         out.append(ExecuteProcess(
             cmd=["ros2", "bag", "record", "--storage", "mcap", "--output", common.value(context, "bag"),
                  *(["--use-sim-time"] if sim else []), "--topics", *topics, "/diagnostics"],
