@@ -26,9 +26,9 @@
    them (:func:`clm_core.io.report_index.write_index`).
 
 ``summary.json`` holds, measured from the first message with nothing
-excluded: ``lag_median_s``, ``lag_p99_s``, ``lag_max_s`` (the recorder's
-receive time of each ``sleeper_response`` minus the stamp of its wheel-load
-message), ``feedback_used`` and ``feedback_total`` (answers the vehicle used
+excluded: ``lag_median_s``, ``lag_p99_s``, ``lag_max_s`` (the time the
+recorder's middleware received each ``sleeper_response``, its log time in
+the bag, minus the stamp of its wheel-load message), ``feedback_used`` and ``feedback_total`` (answers the vehicle used
 to close the loop, of the messages it published), the vehicle's own counts
 (``vehicle_node``), each process's CPU time per message
 (``cpu_us_per_message``), the exit codes, and the peaks.
@@ -60,6 +60,9 @@ from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env, sto
 
 #: What the demo records: the data topics, the window's markers (10 Hz) and /diagnostics. Not the monitored
 #: sleepers: one more 1-kHz topic for the recorder, and their series are in /sleeper_response (live views only).
+#: How often the recorder takes the messages that have arrived [s] (their log times are their reception times).
+POLL = 0.005
+
 TOPICS = {
     "/wheel_loads": "clm_msgs/msg/WheelLoads",
     "/sleeper_response": "clm_msgs/msg/SleeperResponse",
@@ -190,30 +193,33 @@ def _run_demo(
     summary: dict[str, Any] = {}
     watch = _Watch()
     bar = Progress(n_expected, "clm demo", unit="msg")
-    node = None
+    nodes: list[Any] = []
     try:
         procs["track_node"] = subprocess.Popen(
             [sys.executable, "-m", "clm_ros.track_node", *ros_args(track_params)],
             env=env, stdout=logs["track_node"], stderr=subprocess.STDOUT,
         )
+        # the recorder (~3 messages per ms) takes its messages every POLL s with their reception times, no
+        # executor wake-up per message; the diagnostics (a few per second) come through the executor
         node = rclpy.create_node("clm_demo_recorder", context=ctx)
-        # the recorder takes ~3 messages per ms: the events executor keeps up where
-        # the single-threaded one (~1k callbacks/s) would back-pressure the nodes
+        watcher = rclpy.create_node("clm_demo_watch", context=ctx)
+        nodes += [node, watcher]
         ex = EventsExecutor(context=ctx)
-        ex.add_node(node)
+        ex.add_node(watcher)
 
         def spin_for(seconds: float) -> None:
             end = time.monotonic() + seconds
             while (left := end - time.monotonic()) > 0:
-                ex.spin_once(timeout_sec=left)
+                ex.spin_once(timeout_sec=min(left, POLL))
+                rec.poll()
 
         def check(name: str) -> None:
             if procs[name].poll() is not None:
                 raise ClmRosError(f"{name.replace('_', ' ')} exited early with code {procs[name].returncode}; "
                                   f"see {out}/{name}.log")
 
-        rec = BagRecorder(node, bag, TOPICS, storage=storage)
-        node.create_subscription(DiagnosticArray, "/diagnostics", watch.on_diagnostics, 50)
+        rec = BagRecorder(node, bag, TOPICS, storage=storage, polled=True)
+        watcher.create_subscription(DiagnosticArray, "/diagnostics", watch.on_diagnostics, 50)
         gc.collect()
         gc.freeze()  # no 0.1-s full collection of the start-up heap while recording (clm_ros.node_main)
         procs["vehicle_node"] = subprocess.Popen(
@@ -248,8 +254,8 @@ def _run_demo(
         summary["cpu_us_per_message"] = _cpu_per_message(watch.cpu0, cpu1)
     finally:
         bar.close()
-        if node is not None:
-            node.destroy_node()
+        for n in nodes:
+            n.destroy_node()
         codes = _stop({k: procs[k] for k in ("vehicle_node", "track_node") if k in procs})
         for f in logs.values():
             f.close()
