@@ -167,6 +167,11 @@ class BagRecorder:
 
         return cb
 
+    def matched(self, topics: Sequence[str]) -> bool:
+        """Whether the subscription of each of ``topics`` has matched at least one publisher."""
+        subs = dict(zip(self.topics, self._subs))
+        return all(subs[t].get_publisher_count() >= 1 for t in topics)
+
     def poll(self) -> int:
         """``polled``: take and write every message that has arrived; return how many.
 

@@ -220,6 +220,16 @@ def _run_demo(
 
         rec = BagRecorder(node, bag, TOPICS, storage=storage, polled=True)
         watcher.create_subscription(DiagnosticArray, "/diagnostics", watch.on_diagnostics, 50)
+        # the answers reach the bag from the first one only if the recorder's readers have matched the track node's
+        # publishers before the train starts (volatile topics: nothing is kept for a late reader); the vehicle
+        # waits for the track node and for this recorder's wheel_loads reader itself
+        t_up = time.monotonic()
+        while not rec.matched(("/sleeper_response", "/wheel_rail_response")):
+            spin_for(0.02)
+            check("track_node")
+            if time.monotonic() - t_up > timeout:
+                raise ClmRosError(f"the track node's answers not discovered after {timeout:g} s; see "
+                                  f"{out}/track_node.log")
         gc.collect()
         gc.freeze()  # no 0.1-s full collection of the start-up heap while recording (clm_ros.node_main)
         procs["vehicle_node"] = subprocess.Popen(
