@@ -62,6 +62,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
+import rclpy
 from clm_msgs.msg import WheelLoads, WheelRailResponse
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.lifecycle import Node as LifecycleNode
@@ -143,9 +144,13 @@ class VehicleNode(LifecycleNode):
 
     Everything runs in the thread that spins the node: :meth:`service` (called
     by :func:`clm_ros.node_main.run_node` between two turns of the executor)
-    publishes the message that is due, computes the next one and says how
-    long the executor may wait for answers until then. No second thread, so
-    no lock and no hand-over of the interpreter between threads per message.
+    takes the answers that have arrived, publishes the message that is due,
+    computes the next one and says how long the executor may wait for other
+    work (services, timers) until then. No second thread, so no lock and no
+    hand-over of the interpreter between threads; one wake-up per message.
+    The answers' subscription belongs to a helper node
+    (``<name>_answers``, same namespace) that no executor spins: the node takes
+    them itself, with the middleware's reception times.
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -162,6 +167,7 @@ class VehicleNode(LifecycleNode):
         self._pub: Any = None
         self._clock_pub: Any = None
         self._sub: Any = None
+        self._answers_node: Any = None
         # one /diagnostics publisher and timer for the node's life, in every state
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._diag_timer = self.create_timer(float(self.p("diagnostics_period")), self._publish_diagnostics)
@@ -212,8 +218,12 @@ class VehicleNode(LifecycleNode):
         qos = QoSOverridingOptions.with_default_policies()
         self._pub = self.create_lifecycle_publisher(WheelLoads, "wheel_loads", DATA_QOS, qos_overriding_options=qos)
         self._clock_pub = self.create_lifecycle_publisher(Clock, "/clock", 10) if self.p("publish_clock") else None
-        self._sub = self.create_subscription(WheelRailResponse, "wheel_rail_response", self._on_response, DATA_QOS,
-                                             qos_overriding_options=qos, raw=True)
+        # the answers are taken by the node itself when it serves the timetable (service), not by the executor: one
+        # wake-up per message instead of two; their subscription belongs to a helper node that no executor spins
+        self._answers_node = rclpy.create_node(f"{self.get_name()}_answers", namespace=self.get_namespace(),
+                                               context=self.context)
+        self._sub = self._answers_node.create_subscription(WheelRailResponse, "wheel_rail_response", _ignore,
+                                                           DATA_QOS, qos_overriding_options=qos, raw=True)
         self._set_state("configured", DiagnosticStatus.OK)
         freeze_heap()  # the run's objects live until cleanup: no full collection of them during a train
         self.get_logger().info(
@@ -285,9 +295,9 @@ class VehicleNode(LifecycleNode):
         for p in (self._pub, self._clock_pub):
             if p is not None:
                 self.destroy_lifecycle_publisher(p)
-        if self._sub is not None:
-            self.destroy_subscription(self._sub)
-        self._pub = self._clock_pub = self._sub = None
+        if self._answers_node is not None:
+            self._answers_node.destroy_node()
+        self._pub = self._clock_pub = self._sub = self._answers_node = None
 
     def _halt(self, state: str) -> None:
         """Stop the schedule (the train that runs is reported as stopped)."""
@@ -309,6 +319,7 @@ class VehicleNode(LifecycleNode):
     def service(self) -> float:
         """Do what is due now; return how long the executor may wait for other work until the next action [s]."""
         try:
+            self._take_answers()
             phase = self._phase
             if phase == "run":
                 return self._serve_train()
@@ -498,8 +509,24 @@ class VehicleNode(LifecycleNode):
 
     # ------------------------------------------------------------------ answers
 
-    def _on_response(self, raw: bytes) -> None:
-        now = time.monotonic_ns()
+    def _take_answers(self) -> None:
+        """Take every answer that has arrived (the middleware's reception time is each one's arrival)."""
+        sub = self._sub
+        if sub is None:
+            return
+        handle, msg_type = sub.handle, sub.msg_type
+        offset = time.time_ns() - time.monotonic_ns()  # system clock -> monotonic
+        while True:
+            with handle:
+                taken = handle.take_message(msg_type, True)
+            if taken is None:
+                return
+            raw, info = taken
+            received = info.get("received_timestamp")
+            self._on_response(raw, received - offset if received else time.monotonic_ns())
+
+    def _on_response(self, raw: bytes, now: int) -> None:
+        """One answer, received at ``now`` [monotonic ns]."""
         c = self.train
         try:
             d = decode_wheel_rail_response(raw)
@@ -587,6 +614,10 @@ class VehicleNode(LifecycleNode):
             self._pub_diag.publish(arr)
         except Exception:  # the context is going down
             pass
+
+
+def _ignore(_raw: bytes) -> None:
+    """Callback of the answers' subscription, never called: no executor spins its node."""
 
 
 def main(args: Sequence[str] | None = None) -> int:
