@@ -58,6 +58,21 @@ def test_demo_domain_printed_first_and_refused_when_held(tmp_path: Path, ros_dom
     assert not (tmp_path / "d").exists() or not any((tmp_path / "d").iterdir())
 
 
+def test_demo_domain_default_is_the_settings() -> None:
+    import argparse
+    import inspect
+
+    from clm_ros.commands.demo import register
+    from clm_ros.launcher import run_demo
+
+    from clm_core import settings
+
+    assert inspect.signature(run_demo).parameters["domain_id"].default == settings.DOMAIN_ID.default == 42
+    sub = argparse.ArgumentParser().add_subparsers()
+    register(sub)
+    assert sub.choices["demo"].parse_args([]).domain_id == settings.DOMAIN_ID.default
+
+
 def test_demo_domain_option_checked() -> None:
     proc = run_clm(["demo", "--domain", "300"], timeout=60)
     assert proc.returncode == 2 and "--domain = 300: must be 0 to 232" in proc.stderr

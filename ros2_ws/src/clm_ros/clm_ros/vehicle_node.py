@@ -168,6 +168,7 @@ class VehicleNode(LifecycleNode):
         self._clock_pub: Any = None
         self._sub: Any = None
         self._answers_node: Any = None
+        self.closed_loop = False  # (the parameter, read at configure)
         # one /diagnostics publisher and timer for the node's life, in every state
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._diag_timer = self.create_timer(float(self.p("diagnostics_period")), self._publish_diagnostics)
@@ -603,9 +604,13 @@ class VehicleNode(LifecycleNode):
         if final:
             values["final_train"] = final
             values.update({f"train.{k}": f"{v:.6f}" for k, v in c.lag_figures().items()})
-        level = DiagnosticStatus.ERROR if self._model_error else self.level
+        level, message = (DiagnosticStatus.ERROR if self._model_error else self.level), self.state_text
+        # the closed loop is open in effect when answers come too late: more than 1 % of a train's messages
+        if level == DiagnosticStatus.OK and self.closed_loop and c.published >= 100 and c.stale > 0.01 * c.published:
+            level = DiagnosticStatus.WARN
+            message += f" ({c.stale} of {c.published} answers too late for the closed loop)"
         status = DiagnosticStatus(
-            level=level, name=f"{self.get_fully_qualified_name()}: vehicle simulator", message=self.state_text,
+            level=level, name=f"{self.get_fully_qualified_name()}: vehicle simulator", message=message,
             hardware_id="clm_core", values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
         )
         arr = DiagnosticArray(status=[status])
