@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import importlib
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -184,14 +184,8 @@ class BagRecorder:
         n = 0
         write = self.writer.write
         for topic, sub in zip(self.topics, self._subs):
-            handle, msg_type = sub.handle, sub.msg_type
-            while True:
-                with handle:
-                    taken = handle.take_message(msg_type, True)
-                if taken is None:
-                    break
-                raw, info = taken
-                write(self._connection(topic), info.get("received_timestamp") or time.time_ns(), raw)
+            for raw, received in take_raw(sub):
+                write(self._connection(topic), received or time.time_ns(), raw)
                 self.counts[topic] += 1
                 n += 1
         return n
@@ -218,6 +212,22 @@ class BagRecorder:
         if not self.closed:
             self._stop()
         self.writer.abort()
+
+
+def take_raw(sub: Any) -> Iterator[tuple[bytes, int | None]]:
+    """Take every message waiting in raw subscription ``sub`` (one no executor spins).
+
+    Yields ``(serialized bytes, reception time [ns, system clock] or None)``;
+    the reception time is the middleware's (rmw ``received_timestamp``).
+    """
+    handle, msg_type = sub.handle, sub.msg_type
+    while True:
+        with handle:
+            taken = handle.take_message(msg_type, True)
+        if taken is None:
+            return
+        raw, info = taken
+        yield raw, info.get("received_timestamp") or None
 
 
 def _type_clash(node: Any, topic: str, msgtype: str, publishers: bool) -> str | None:

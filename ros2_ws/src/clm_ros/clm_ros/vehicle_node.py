@@ -80,6 +80,7 @@ from clm_core.params import load_model, load_params_file
 from clm_core.settings import setting
 from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
+from clm_ros.bag_tools import take_raw
 from clm_ros.node_main import exit_process, freeze_heap, run_node
 from clm_ros.parameters import declare_settings
 
@@ -512,18 +513,10 @@ class VehicleNode(LifecycleNode):
 
     def _take_answers(self) -> None:
         """Take every answer that has arrived (the middleware's reception time is each one's arrival)."""
-        sub = self._sub
-        if sub is None:
+        if self._sub is None:
             return
-        handle, msg_type = sub.handle, sub.msg_type
         offset = time.time_ns() - time.monotonic_ns()  # system clock -> monotonic
-        while True:
-            with handle:
-                taken = handle.take_message(msg_type, True)
-            if taken is None:
-                return
-            raw, info = taken
-            received = info.get("received_timestamp")
+        for raw, received in take_raw(self._sub):
             self._on_response(raw, received - offset if received else time.monotonic_ns())
 
     def _on_response(self, raw: bytes, now: int) -> None:
