@@ -170,6 +170,7 @@ class VehicleNode(LifecycleNode):
         self._sub: Any = None
         self._answers_node: Any = None
         self.closed_loop = False  # (the parameter, read at configure)
+        self._diag_mark = (0, 0)  # (published, too late) of the train at the last diagnostics
         # one /diagnostics publisher and timer for the node's life, in every state
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._diag_timer = self.create_timer(float(self.p("diagnostics_period")), self._publish_diagnostics)
@@ -598,10 +599,13 @@ class VehicleNode(LifecycleNode):
             values["final_train"] = final
             values.update({f"train.{k}": f"{v:.6f}" for k, v in c.lag_figures().items()})
         level, message = (DiagnosticStatus.ERROR if self._model_error else self.level), self.state_text
-        # the closed loop is open in effect when answers come too late: more than 1 % of a train's messages
-        if level == DiagnosticStatus.OK and self.closed_loop and c.published >= 100 and c.stale > 0.01 * c.published:
+        # the closed loop is open in effect when answers come too late: more than 1 % of the messages published
+        # since the last diagnostics
+        published, stale = c.published - self._diag_mark[0], c.stale - self._diag_mark[1]
+        self._diag_mark = (c.published, c.stale) if c.published >= self._diag_mark[0] else (0, 0)
+        if level == DiagnosticStatus.OK and self.closed_loop and published >= 100 and stale > 0.01 * published:
             level = DiagnosticStatus.WARN
-            message += f" ({c.stale} of {c.published} answers too late for the closed loop)"
+            message += f" ({stale} of the last {published} answers too late for the closed loop)"
         status = DiagnosticStatus(
             level=level, name=f"{self.get_fully_qualified_name()}: vehicle simulator", message=message,
             hardware_id="clm_core", values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
