@@ -437,6 +437,39 @@ MARKERS_PERIOD: Setting[float] = Setting(
     "track_markers; wall clock); 0: none", minimum=0.0, maximum=3600.0, read_only=True,
 )
 
+# the vehicle node (ROS): its schedule of trains, the track node it waits for; clm demo's ROS domain
+TRAINS: Setting[int] = Setting(
+    "trains", int, 0, "-", "trains the vehicle node runs after activation, one after another (0: until "
+    "deactivated)", minimum=0, maximum=1_000_000, read_only=True,
+)
+HEADWAY: Setting[float] = Setting(
+    "headway", float, 0.0, "s", "time between the starts of successive trains (0: each train starts train_pause "
+    "after the previous one)", minimum=0.0, maximum=86400.0, read_only=True,
+)
+TRAIN_PAUSE: Setting[float] = Setting(
+    "train_pause", float, 2.0, "s", "least pause between the end of a train and the start of the next (longer "
+    "than the track node's max_gap, so that the track node starts each train from rest)", minimum=0.0,
+    maximum=86400.0, read_only=True,
+)
+TRACK_NODE: Setting[str] = Setting(
+    "track_node", str, "clm_track_node", "-", "name of the track node a train waits for: its wheel_loads "
+    "subscription and wheel_rail_response publisher both matched (it is active and subscribed); empty: any "
+    "subscriber", read_only=True,
+)
+ANSWER_TIMEOUT: Setting[float] = Setting(
+    "answer_timeout", float, 1.0, "s", "a train without an answer of the track node for this long reports it "
+    "silent (log, /diagnostics WARN) and runs on its predictor until answers return", minimum=0.01,
+    maximum=3600.0, read_only=True,
+)
+EXIT_WHEN_DONE: Setting[bool] = Setting(
+    "exit_when_done", bool, False, "-", "exit the vehicle node's process (code 0) after the last of `trains` "
+    "trains (a launch file ends with it)", read_only=True,
+)
+DOMAIN_ID: Setting[int] = Setting(
+    "domain_id", int, 42, "-", "ROS domain of clm demo's nodes (printed at start: watch the run live with "
+    "ROS_DOMAIN_ID set to it)", minimum=0, maximum=232, flags=("--domain",),
+)
+
 #: Every run setting by name.
 SETTINGS: Mapping[str, Setting[Any]] = {
     s.name: s
@@ -446,6 +479,7 @@ SETTINGS: Mapping[str, Setting[Any]] = {
         MAX_RESPONSE_DISPLACEMENT, RESYNC_CONFIRM, MAX_WHEELS, DURATION, OUTPUT_DT, STORAGE, START, SPEED, LOAD, AXLES,
         LOADS_FILE, VEHICLE, CARS, TRAIN, IRREGULARITY, SEED, WAVELENGTH_BAND, LEAD_IN, HERTZ, TRACK_ENGINE, RATE,
         CLOSED_LOOP, LAG_BUDGET, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS, MARKERS_PERIOD,
+        TRAINS, HEADWAY, TRAIN_PAUSE, TRACK_NODE, ANSWER_TIMEOUT, EXIT_WHEN_DONE, DOMAIN_ID,
     )
 }
 

@@ -18,7 +18,10 @@ from Python, with the same arithmetic up to rounding:
    the same window DOFs after every shift and no solve is left per step;
 3. vehicle Newmark predictor, Newton solution of the Hertz contact and
    vehicle update: the compiled
-   :func:`clm_core.vehicle.contact.fused_vehicle_contact_step` itself;
+   :func:`clm_core.vehicle.contact.fused_vehicle_contact_step` itself
+   (loops and its own small elimination, no LAPACK call; numba's on-disk
+   cache of this module does not see a change of that function: this
+   file must change with it, as this sentence did);
 4. track update du = x0 + sum_j P_j K_eff^-1 n_j (16 axpys for 4 wheels),
    u += du, v = (2/dt) du - v; running peaks of the soil force and rail
    deflection; outputs.

@@ -28,68 +28,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from clm_core.errors import InputError, ParameterError
-from clm_core.vehicle.contact import fused_vehicle_contact_step, static_compression
+from clm_core.vehicle._streaming_kernel import OUTSIDE_PROFILE, message_steps, work_size
+from clm_core.vehicle.contact import static_compression
 from clm_core.vehicle.coupled import CoupledSimulation
 from clm_core.vehicle.multibody import VehicleNewmark
 
 Array = NDArray[np.float64]
-
-
-@njit(cache=True)
-def _sdof_vehicle_steps(
-    Kinv: Array,
-    KinvB: Array,
-    H: Array,
-    M: Array,
-    C: Array,
-    grav: Array,
-    wdof: NDArray[np.int64],
-    u: Array,
-    v: Array,
-    a: Array,
-    dt: float,
-    R: Array,
-    ch: Array,
-    delta: Array,
-    Mt: float,
-    Ct: float,
-    S: float,
-    G: Array,
-    w: Array,
-    vw: Array,
-    aw: Array,
-    offset: Array,
-    tol: float,
-    maxit: int,
-) -> tuple[Array, Array, int, float, int]:  # pragma: no cover - compiled
-    """Several steps of vehicle + Hertz contact + per-wheel SDOF track predictor (state in place)."""
-    n_w = w.shape[0]
-    P = np.zeros(n_w)
-    worst = 0.0
-    lost = 0
-    maxit_used = 0
-    for i in range(R.shape[0]):
-        rhs = Mt * (4.0 / dt**2 * w + 4.0 / dt * vw + aw) + Ct * (2.0 / dt * w + vw)
-        w_free = rhs / S + offset
-        delta, P, it, rn = fused_vehicle_contact_step(
-            Kinv, KinvB, H, M, C, grav, wdof, u, v, a, dt, w_free, G, R[i], ch, delta, tol, maxit
-        )
-        worst = max(worst, rn)
-        maxit_used = max(maxit_used, it)
-        w_new = (rhs + P) / S
-        dw = w_new - w
-        vw_new = 2.0 / dt * dw - vw
-        aw[:] = 4.0 / dt**2 * dw - 4.0 / dt * vw - aw
-        vw[:] = vw_new
-        w[:] = w_new
-        for j in range(n_w):
-            if P[j] <= 0.0:
-                lost += 1
-    return delta, P, maxit_used, worst, lost
 
 
 class StreamingVehicle:
@@ -102,9 +49,22 @@ class StreamingVehicle:
         start position, Hertz constants); built e.g. by
         :func:`clm_core.vehicle.run.build_vehicle_run`. Its own track engine
         is not used.
+    compiled_irregularity : bool
+        Evaluate the rail profile under the wheels in the compiled step
+        (default). False: evaluate it with numpy in Python every call (the
+        reference path, identical up to the rounding of ``cos`` and
+        ``interp``). A run with isolated defects or wheel flats always uses
+        the Python evaluation for them.
+
+    Notes
+    -----
+    One :meth:`advance` is one compiled call (:func:`clm_core.vehicle._streaming_kernel.message_steps`):
+    wheel positions, irregularity, and per step the predictor, the vehicle's
+    Newmark prediction, the Hertz contact Newton solution and the updates.
+    ``benchmarks/vehicle_step.py`` prints its cost per message.
     """
 
-    def __init__(self, sim: CoupledSimulation) -> None:
+    def __init__(self, sim: CoupledSimulation, compiled_irregularity: bool = True) -> None:
         from clm_core.vehicle.impact import equivalent_track
 
         self.sim = sim
@@ -127,44 +87,45 @@ class StreamingVehicle:
         self.v = np.zeros(n)
         self.a = np.zeros(n)
         self.offset = np.zeros(n)
-        self.delta = static_compression(self.P, sim.hertz)
+        self.delta = np.ascontiguousarray(static_compression(self.P, sim.hertz), dtype=np.float64)
         r0 = sim.irregularity.wheel_irregularity(x0[None, :], x0, tr.wheel_radius)[0]
         self.veh = VehicleNewmark(tr, dt)
         self.veh.set_state(tr.static_state(self.w + r0 + self.delta), None, self.P)
         self._history: dict[int, Array] = {0: self.w.copy()}
         self.contact_lost_steps = 0
         self._last_response_step = 0
+        irr = sim.irregularity
+        #: irregularity evaluated in Python (numpy) and passed to the compiled step
+        self.python_irregularity = not compiled_irregularity or bool(irr.defects) or bool(irr.flats)
+        prof = irr.profile
+        self._px = np.ascontiguousarray(prof.x if prof is not None else np.zeros(0), dtype=np.float64)
+        self._pr = np.ascontiguousarray(prof.r if prof is not None else np.zeros(0), dtype=np.float64)
+        self._lead_in = float(irr.lead_in)
+        self._x_start = float(sim.x_start)
+        self._speed = float(sim.speed)
+        self._offsets = np.ascontiguousarray(tr.wheel_offset, dtype=np.float64)
+        self._x0 = np.ascontiguousarray(x0, dtype=np.float64)
+        #: wheel positions now [m] (those of :meth:`positions`, kept by :meth:`advance`)
+        self.x: Array = self._x0.copy()
+        self._work: dict[int, tuple[Array, Array]] = {}
+        self._kwork = np.empty(work_size(self.veh.u.shape[0], n))
         self.warm_up()
 
     def warm_up(self) -> None:
-        """Compile (or load) the stepping kernel on copies of the state: no effect on the run."""
+        """Compile (or load from the on-disk cache) the stepping kernel on copies of the state: no effect on the run."""
+        n = self.train.n_wheels
+        self._call(self.veh.u.copy(), self.veh.v.copy(), self.veh.a.copy(), self.delta.copy(), self.P.copy(),
+                   self.w.copy(), self.v.copy(), self.a.copy(), np.empty((1, n)), np.zeros((1, n)),
+                   self.python_irregularity)
+
+    def _call(self, u: Array, v: Array, a: Array, delta: Array, P: Array, w: Array, vw: Array, aw: Array,
+              X: Array, R: Array, given_R: bool) -> tuple[int, int, float, int]:
         tr, veh = self.train, self.veh
-        R = np.zeros((1, tr.n_wheels))
-        _sdof_vehicle_steps(
-            veh._Kinv,
-            veh._KinvB,
-            veh.H,
-            tr.M,
-            tr.C,
-            tr.gravity_force,
-            tr.wheel_dof,
-            veh.u.copy(),
-            veh.v.copy(),
-            veh.a.copy(),
-            self.dt,
-            R,
-            self.sim.hertz,
-            self.delta.copy(),
-            self.eq.Mt,
-            self.eq.Ct,
-            self._S,
-            self.G,
-            self.w.copy(),
-            self.v.copy(),
-            self.a.copy(),
-            self.offset.copy(),
-            1e-14,
-            50,
+        return message_steps(
+            veh._Kinv, veh._KinvB, veh.H, tr.M, tr.C, tr.gravity_force, tr.wheel_dof, u, v, a, self.dt,
+            self.sim.hertz, delta, P, self.eq.Mt, self.eq.Ct, self._S, self.G, w, vw, aw, self.offset, 1e-14, 50,
+            self._kwork, self.k, self._x_start, self._speed, self._offsets, self._px, self._pr, self._lead_in,
+            self._x0, X, R, given_R,
         )
 
     @property
@@ -210,46 +171,42 @@ class StreamingVehicle:
         self.offset = np.ascontiguousarray(self.offset + alpha * ((w - ref) - self.offset))
 
     def advance(self, n_steps: int) -> Array:
-        """Advance ``n_steps`` steps of ``dt``; return the contact forces P [N] at the end."""
+        """Advance ``n_steps`` steps of ``dt``; return the contact forces P [N] at the end.
+
+        Raises
+        ------
+        ParameterError
+            ``n_steps`` < 1.
+        InputError
+            A wheel runs off the sampled rail profile (nothing advanced), or
+            the contact Newton iteration did not converge.
+        """
         if n_steps < 1:
             raise ParameterError(f"n_steps = {n_steps}: must be >= 1")
-        tr, dt = self.train, self.dt
-        Mt, Ct = self.eq.Mt, self.eq.Ct
-        t = np.asarray((self.k + 1 + np.arange(n_steps)) * dt, dtype=np.float64)
-        X = self.sim.wheel_positions(t)
-        R = self.sim.irregularity.wheel_irregularity(X, self.x0, tr.wheel_radius)
+        work = self._work.get(n_steps)
+        if work is None:
+            n = self.train.n_wheels
+            work = self._work[n_steps] = (np.empty((n_steps, n)), np.empty((n_steps, n)))
+        X, R = work
+        if self.python_irregularity:
+            t = np.asarray((self.k + 1 + np.arange(n_steps)) * self.dt, dtype=np.float64)
+            R[:] = self.sim.irregularity.wheel_irregularity(self.sim.wheel_positions(t), self.x0,
+                                                            self.train.wheel_radius)
         veh = self.veh
-        self.delta, self.P, _, worst, lost = _sdof_vehicle_steps(
-            veh._Kinv,
-            veh._KinvB,
-            veh.H,
-            tr.M,
-            tr.C,
-            tr.gravity_force,
-            tr.wheel_dof,
-            veh.u,
-            veh.v,
-            veh.a,
-            dt,
-            np.ascontiguousarray(R),
-            self.sim.hertz,
-            np.ascontiguousarray(self.delta),
-            Mt,
-            Ct,
-            self._S,
-            self.G,
-            self.w,
-            self.v,
-            self.a,
-            self.offset,
-            1e-14,
-            50,
-        )
-        if not (worst <= 1e-14 and np.all(np.isfinite(self.P))):
+        P = np.empty(self.train.n_wheels)
+        status, _, worst, lost = self._call(veh.u, veh.v, veh.a, self.delta, P, self.w, self.v, self.a, X, R,
+                                            self.python_irregularity)
+        if status == OUTSIDE_PROFILE:
+            # the profile's own message (which positions, which coverage)
+            self.sim.irregularity.wheel_irregularity(X, self.x0, self.train.wheel_radius)
+            raise InputError(f"wheels at [{X.min():g}, {X.max():g}] m run off the rail profile")
+        if not worst <= 1e-14:  # a non-finite force gives an infinite residual
             raise InputError(f"contact Newton iteration did not converge (residual {worst:.3g} m)")
+        self.P = P
+        self.x = X[-1].copy()
         self.contact_lost_steps += int(lost)
         self.k += n_steps
         self._history[self.k] = self.w.copy()
         if len(self._history) > 100_000:  # no answers coming: keep memory bounded
             self._history.pop(next(iter(self._history)))
-        return np.asarray(self.P, dtype=float)
+        return P

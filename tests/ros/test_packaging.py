@@ -49,6 +49,7 @@ from typing import Any
 
 import pytest
 import yaml
+from clm_ros.processes import ros_args
 
 REPO = Path(__file__).resolve().parents[2]
 WS = REPO / "ros2_ws"
@@ -101,7 +102,7 @@ def demo_params() -> dict[str, dict[str, Any]]:
 
 
 def test_launch_files_exist_compile_and_define_generate_launch_description(tmp_path: Path) -> None:
-    assert {p.name for p in LAUNCH_FILES} >= {"demo.launch.py", "track.launch.py"}
+    assert {p.name for p in LAUNCH_FILES} >= {"demo.launch.py", "track.launch.py", "replay.launch.py"}
     for path in LAUNCH_FILES:
         py_compile.compile(str(path), cfile=str(tmp_path / (path.name + "c")), doraise=True)
         tree = ast.parse(path.read_text(encoding="utf-8"))
@@ -166,6 +167,13 @@ def _perform(sub: Any, ctx: dict[str, str]) -> str:
     raise AssertionError(f"unexpected substitution {sub!r}")
 
 
+class _Context:
+    """Stand-in of launch's LaunchContext for an OpaqueFunction: the launch arguments (KeyError if undeclared)."""
+
+    def __init__(self, values: dict[str, str]) -> None:
+        self.launch_configurations = values
+
+
 def _launch(path: Path, monkeypatch: pytest.MonkeyPatch) -> list[Any]:
     for name, mod in _stub_modules().items():
         monkeypatch.setitem(sys.modules, name, mod)
@@ -192,95 +200,193 @@ def _walk(obj: Any) -> Iterator[Any]:
             yield from _walk(v)
 
 
-def _arguments(entities: list[Any]) -> dict[str, str]:
+def _arguments(entities: list[Any]) -> dict[str, Any]:
     return {e.args[0]: e.kwargs.get("default_value") for e in entities if e.kind == "DeclareLaunchArgument"}
 
 
-def _defaults(entities: list[Any], **over: str) -> dict[str, str]:
-    args = _arguments(entities)
-    ctx: dict[str, str] = {}
-    for k, v in args.items():
-        ctx[k] = _perform(v, ctx) if v is not None else ""
-    ctx.update(over)
-    return ctx
-
-
-def _check_common(entities: list[Any]) -> list[Any]:
+def _run(entities: list[Any], **over: str) -> list[Any]:
+    """The launch as launch runs it with arguments ``over``: declared defaults, then the OpaqueFunctions' actions."""
     declared = _arguments(entities)
+    assert all(v is not None for v in declared.values()), "every launch argument needs a default"
+    unknown = set(over) - set(declared)
+    assert not unknown, f"not launch arguments: {unknown}"
+    ctx = {k: _perform(v, {}) for k, v in declared.items()} | over
     used = {o.args[0] for o in _walk(entities) if o.kind == "LaunchConfiguration"}
     assert used <= set(declared), f"launch configurations used but not declared: {used - set(declared)}"
-    assert all(v is not None for v in declared.values()), "every launch argument needs a default"
-    nodes = [e for e in _walk(entities) if e.kind in ("Node", "LifecycleNode")]
+    out: list[Any] = []
+    for e in entities:
+        if e.kind == "OpaqueFunction":
+            out += e.kwargs["function"](_Context(dict(ctx)))  # a KeyError: an argument used but not declared
+        elif e.kind != "DeclareLaunchArgument":
+            out.append(e)
     scripts = console_scripts()
-    for n in nodes:
+    for n in (e for e in _walk(out) if e.kind in ("Node", "LifecycleNode")):
         assert n.kwargs["package"] == "clm_ros"
         assert n.kwargs["executable"] in scripts, f"{n.kwargs['executable']} is not a console script of setup.py"
-    return nodes
+    return out
 
 
-def _node_params(node: Any, ctx: dict[str, str]) -> tuple[list[str], dict[str, Any]]:
-    files: list[str] = []
-    values: dict[str, Any] = {}
-    for p in node.kwargs.get("parameters", []):
-        if isinstance(p, dict):
-            for k, v in p.items():
-                if getattr(v, "kind", None) == "ParameterValue":
-                    values[k] = v.kwargs["value_type"](yaml.safe_load(_perform(v.args[0], ctx)))
-                else:
-                    values[k] = v
-        else:
-            files.append(_perform(p, ctx))
-    return files, values
+def _nodes(actions: list[Any]) -> dict[str, Any]:
+    return {n.kwargs["executable"]: n for n in actions if n.kind == "Node"}
+
+
+def _params(node: Any) -> tuple[str, dict[str, Any]]:
+    """(parameter file, the dictionary that follows it) of a node."""
+    file, values = node.kwargs["parameters"]
+    return file, values
+
+
+COMMON = {"namespace", "use_sim_time", "params_file", "track", "soil", "model", "wheel_loads_topic",
+          "sleeper_response_topic", "wheel_rail_response_topic", "log_level"}
 
 
 def test_track_launch_file(monkeypatch: pytest.MonkeyPatch) -> None:
     entities = _launch(LAUNCH / "track.launch.py", monkeypatch)
-    nodes = _check_common(entities)
-    assert len(nodes) == 1 and nodes[0].kwargs["executable"] == "track_node"
-    assert {"params_file", "namespace", "autostart"} <= set(_arguments(entities))
-    ctx = _defaults(entities)
-    assert _perform(nodes[0].kwargs["name"], ctx) == TRACK_NODE
-    files, values = _node_params(nodes[0], ctx)
-    assert files == [str(CONFIG)] and values == {"autostart": True}
-    files, values = _node_params(nodes[0], _defaults(entities, params_file="/x/mine.yaml", autostart="false"))
-    assert files == ["/x/mine.yaml"] and values == {"autostart": False}
+    assert COMMON | {"autostart", "node_name"} <= set(_arguments(entities))
+    (track,) = _run(entities)
+    assert track.kwargs["executable"] == "track_node" and track.kwargs["name"] == TRACK_NODE
+    assert track.kwargs["namespace"] == "" and track.kwargs["remappings"] == []
+    assert _params(track) == (str(CONFIG), {"use_sim_time": False, "autostart": True})
     assert TRACK_NODE in demo_params()
+    (track,) = _run(entities, params_file="/x/mine.yaml", autostart="false", namespace="/line1/", soil="haren",
+                    use_sim_time="true", wheel_loads_topic="/simulator/wheel_loads", node_name="track_a")
+    assert _params(track) == ("/x/mine.yaml", {"soil": "haren", "use_sim_time": True, "autostart": False})
+    assert track.kwargs["namespace"] == "/line1" and track.kwargs["name"] == "track_a"
+    assert track.kwargs["remappings"] == [("wheel_loads", "/simulator/wheel_loads")]
+    assert track.kwargs["ros_arguments"] == ["--log-level", "info"]
 
 
 def test_demo_launch_file(monkeypatch: pytest.MonkeyPatch) -> None:
     entities = _launch(LAUNCH / "demo.launch.py", monkeypatch)
-    nodes = _check_common(entities)
-    by_exe = {n.kwargs["executable"]: n for n in nodes}
-    assert set(by_exe) == {"track_node", "vehicle_node"}
-    assert by_exe["track_node"].kwargs["name"] == TRACK_NODE and by_exe["vehicle_node"].kwargs["name"] == VEHICLE_NODE
+    assert COMMON | {"vehicle", "speed", "duration", "trains", "record", "bag"} <= set(_arguments(entities))
+    actions = _run(entities)
+    nodes = _nodes(actions)
+    assert set(nodes) == {"track_node", "vehicle_node"}
+    assert nodes["track_node"].kwargs["name"] == TRACK_NODE and nodes["vehicle_node"].kwargs["name"] == VEHICLE_NODE
     assert {TRACK_NODE, VEHICLE_NODE} <= set(demo_params())
-    ctx = _defaults(entities)
-    for n in nodes:
-        files, _ = _node_params(n, ctx)
-        assert files == [str(CONFIG)]
-    # the vehicle waits for the track node, and for the recorder too when there is one
-    assert _node_params(by_exe["vehicle_node"], ctx)[1] == {"wait_for_subscribers": 1}
-    assert _node_params(by_exe["vehicle_node"], {**ctx, "record": "true"})[1] == {"wait_for_subscribers": 2}
-    # the recorder: off by default, full topic names in a namespace
-    rec = [e for e in entities if e.kind == "ExecuteProcess"]
-    assert len(rec) == 1
-    cond = rec[0].kwargs["condition"]
-    assert cond.kind == "IfCondition" and _perform(cond.args[0], ctx) == "false"
+    assert _params(nodes["track_node"]) == (str(CONFIG), {"use_sim_time": False, "monitored_sleepers": "100,200,300"})
+    # one train, then the vehicle exits and the launch ends; it waits for the track node only
+    assert _params(nodes["vehicle_node"]) == (str(CONFIG), {"use_sim_time": False, "trains": 1, "exit_when_done": True,
+                                                            "wait_for_subscribers": 1, "publish_clock": False})
+    assert not [a for a in actions if a.kind == "ExecuteProcess"]  # no recorder by default
+    handlers = [a for a in actions if a.kind == "RegisterEventHandler"]
+    assert len(handlers) == 1 and handlers[0].args[0].kwargs["target_action"] is nodes["vehicle_node"]
+    assert handlers[0].args[0].kwargs["on_exit"][0].kwargs["event"].kind == "Shutdown"
+    # with the recorder (it must see the first message), in a namespace, on sim time, other presets
     for ns, prefix in (("", ""), ("line1", "/line1"), ("/line1/", "/line1")):
-        cmd = [_perform(c, {**ctx, "namespace": ns}) for c in rec[0].kwargs["cmd"]]
-        assert cmd[:3] == ["ros2", "bag", "record"]
-        topics = cmd[cmd.index("--topics") + 1:]
-        assert topics == [f"{prefix}/wheel_loads", f"{prefix}/sleeper_response", f"{prefix}/wheel_rail_response",
-                          "/diagnostics"]
-    # the launch ends when the vehicle's run is over
-    handlers = [e for e in entities if e.kind == "RegisterEventHandler"]
-    assert handlers and handlers[0].args[0].kwargs["target_action"] is by_exe["vehicle_node"]
+        actions = _run(entities, record="true", namespace=ns, use_sim_time="true", soil="haren", vehicle="intercity",
+                       speed="44.4", trains="3", sleeper_response_topic="answers")
+        nodes = _nodes(actions)
+        assert nodes["vehicle_node"].kwargs["namespace"] == nodes["track_node"].kwargs["namespace"] == prefix
+        assert _params(nodes["track_node"])[1] == {"soil": "haren", "use_sim_time": True,
+                                                   "monitored_sleepers": "100,200,300"}
+        assert _params(nodes["vehicle_node"])[1] == {
+            "soil": "haren", "use_sim_time": False, "vehicle": "intercity", "speed": 44.4, "trains": 3,
+            "exit_when_done": True, "wait_for_subscribers": 2, "publish_clock": True}
+        for n in nodes.values():
+            assert n.kwargs["remappings"] == [("sleeper_response", "answers")]
+        (rec,) = [a for a in actions if a.kind == "ExecuteProcess"]
+        cmd = rec.kwargs["cmd"]
+        assert cmd[:3] == ["ros2", "bag", "record"] and "--use-sim-time" in cmd
+        assert cmd[cmd.index("--topics") + 1:] == [f"{prefix}/wheel_loads", f"{prefix}/answers",
+                                                   f"{prefix}/wheel_rail_response", f"{prefix}/track_markers",
+                                                   "/diagnostics"]
     # the demo defaults
     p = demo_params()
     assert p[VEHICLE_NODE]["vehicle"] == "thalys" and p[VEHICLE_NODE]["speed"] == pytest.approx(83.33)
     for node in (TRACK_NODE, VEHICLE_NODE):
         assert (p[node]["track"], p[node]["soil"], p[node]["model"]) == ("mevergnies", "mevergnies", "clm")
     assert p[TRACK_NODE]["dt"] == 1e-4 and p[TRACK_NODE]["n_sleepers"] == 61 and p[VEHICLE_NODE]["rate"] == 1000.0
+
+
+def test_replay_launch_file(monkeypatch: pytest.MonkeyPatch) -> None:
+    entities = _launch(LAUNCH / "replay.launch.py", monkeypatch)
+    assert COMMON | {"bag", "rate", "out"} <= set(_arguments(entities))
+    with pytest.raises(RuntimeError, match="give the bag"):
+        _run(entities)
+    actions = _run(entities, bag="/data/demo_bag")
+    (track,) = _nodes(actions).values()
+    assert track.kwargs["executable"] == "track_node" and _params(track) == (str(CONFIG), {"use_sim_time": False})
+    (play,) = [a for a in actions if a.kind == "ExecuteProcess"]
+    assert play.kwargs["cmd"] == ["ros2", "bag", "play", "/data/demo_bag", "--rate", "1.0", "--topics", "/wheel_loads"]
+    (handler,) = [a for a in actions if a.kind == "RegisterEventHandler"]
+    on_exit = handler.args[0].kwargs
+    assert on_exit["target_action"] is play and on_exit["on_exit"][0].kind == "TimerAction"
+    # in a namespace, on the bag's clock, with the answers recorded
+    actions = _run(entities, bag="b", namespace="line1", use_sim_time="true", out="answers", rate="0.5")
+    play, rec = [a for a in actions if a.kind == "ExecuteProcess"]
+    assert play.kwargs["cmd"] == ["ros2", "bag", "play", "b", "--rate", "0.5", "--topics", "/wheel_loads", "--clock",
+                                  "--remap", "/wheel_loads:=/line1/wheel_loads"]
+    assert rec.kwargs["cmd"] == ["ros2", "bag", "record", "--storage", "mcap", "--output", "answers",
+                                 "--use-sim-time", "--topics", "/line1/wheel_loads", "/line1/sleeper_response",
+                                 "/line1/wheel_rail_response", "/diagnostics"]
+    assert _params(_nodes(actions)["track_node"])[1] == {"use_sim_time": True}
+
+
+def _field_type(ts: Any, msgtype: str, path: str) -> str:
+    """Walk a Foxglove message path (``wheels[0].force``) through a type; the leaf's type name."""
+    from rosbags.typesys.base import Nodetype
+
+    current = ("msg", msgtype)
+    for part in path.split("."):
+        name, _, index = part.partition("[")
+        assert current[0] == "msg", f"{path}: {name} below a {current}"
+        fields = dict(ts.fielddefs[current[1]][1])
+        assert name in fields, f"{path}: {current[1]} has no field {name!r} ({sorted(fields)})"
+        kind, detail = fields[name]
+        if kind in (Nodetype.SEQUENCE, Nodetype.ARRAY):
+            assert index, f"{path}: {name} is a sequence, give an index"
+            kind, detail = detail[0]
+        else:
+            assert not index, f"{path}: {name} is not a sequence"
+        leaf = str(detail[0] if kind == Nodetype.BASE else detail)
+        current = ("msg", detail) if kind == Nodetype.NAME else ("base", leaf)
+    return current[1]
+
+
+def test_foxglove_layout_of_the_demo() -> None:
+    """config/foxglove_demo.json: a whole layout whose panels show topics the demo has, by valid message paths."""
+    from clm_ros.launch_common import DEMO_MONITORED_SLEEPERS, LIVE_VIEWS
+    from clm_ros.launcher import TOPICS as RECORDED
+
+    TOPICS = {**RECORDED, **{f"/{t}": msgtype for t, msgtype in LIVE_VIEWS.items()}}  # live: the monitored series too
+
+    from clm_core.io.messages import typestore
+
+    layout = json.loads((PKG / "config" / "foxglove_demo.json").read_text(encoding="utf-8"))
+    assert {"configById", "layout", "globalVariables", "userNodes", "playbackConfig"} <= set(layout)
+
+    def leaves(node: Any) -> list[str]:
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    panels = leaves(layout["layout"])
+    assert sorted(panels) == sorted(layout["configById"]), "every panel placed once, every placed panel configured"
+    ts = typestore()
+    plotted: list[str] = []
+    for pid, cfg in layout["configById"].items():
+        kind = pid.split("!")[0]
+        if kind == "Plot":
+            for p in cfg["paths"]:
+                topic, _, path = p["value"].partition(".")
+                assert topic in TOPICS, f"{pid}: {topic} is not a topic of the demo"
+                leaf = _field_type(ts, TOPICS[topic], path)
+                assert leaf in ("float64", "float32"), f"{pid}: {p['value']} is {leaf}, not a number to plot"
+                plotted.append(p["value"])
+            assert "[" in cfg["title"] and "]" in cfg["title"], f"{pid}: give the unit in the title"
+        elif kind == "3D":
+            assert set(cfg["topics"]) == {"/track_markers"} and "/track_markers" in TOPICS
+        elif kind == "DiagnosticSummary":
+            assert cfg["topicToRender"] == "/diagnostics"
+        elif kind == "RawMessages":
+            assert cfg["topicPath"] in TOPICS
+        else:
+            raise AssertionError(f"unexpected panel {pid}")
+    assert "/wheel_loads.wheels[0].force" in plotted and "/monitored_sleepers.soil_force[0]" in plotted
+    # the monitored series plotted are those the demo asks the track node for, in that order
+    titles = " ".join(cfg.get("title", "") for cfg in layout["configById"].values())
+    assert ", ".join(DEMO_MONITORED_SLEEPERS.split(",")) in titles
+    n = len(DEMO_MONITORED_SLEEPERS.split(","))
+    assert {f"/monitored_sleepers.soil_force[{i}]" for i in range(n)} <= set(plotted)
 
 
 # ---------------------------------------------------------------------------------------------- nodes + demo.yaml
@@ -421,11 +527,12 @@ def test_vehicle_node_takes_every_demo_parameter(client, ros_env: dict[str, str]
     c, procs = client
     expected = demo_params()[VEHICLE_NODE]
     duration = 0.2
-    # short run; no track node: the answers are not waited for long
-    proc = _start("clm_ros.vehicle_node", ros_env, tmp_path, "-p", f"duration:={duration}", "-p", "ack_timeout:=0.5")
+    # one short train; no track node (any reader will do, and the answers are not waited for long)
+    over = {"duration": duration, "ack_timeout": 0.5, "trains": 1, "exit_when_done": True, "track_node": ""}
+    proc = _start("clm_ros.vehicle_node", ros_env, tmp_path, *ros_args(over)[1:])
     procs.append(proc)
     got = c.parameters(f"/{VEHICLE_NODE}", sorted(expected))  # answered while it waits for a subscriber
-    _assert_applied({**expected, "duration": duration, "ack_timeout": 0.5}, got, VEHICLE_NODE)
+    _assert_applied({**expected, **over}, got, VEHICLE_NODE)
     assert expected["wait_for_subscribers"] == 1
     msgs: list[Any] = []
     qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -486,7 +593,7 @@ def test_setup_cfg_script_dirs_follow_ament() -> None:
     }
     data = {dest: sorted(files) for dest, files in kw["data_files"]}
     assert data["share/clm_ros/launch"] == sorted(f"launch/{p.name}" for p in LAUNCH_FILES)
-    assert data["share/clm_ros/config"] == ["config/demo.yaml"]
+    assert data["share/clm_ros/config"] == ["config/demo.yaml", "config/foxglove_demo.json"]
     assert data["share/ament_index/resource_index/packages"] == ["resource/clm_ros"]
     for entry in console_scripts().values():
         module, func = entry.split(":")

@@ -22,7 +22,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
     for name in ("vehicle", "speed", "duration", "track", "soil", "model", "rate", "dt", "n_sleepers",
-                 "irregularity", "seed", "closed_loop", "storage"):
+                 "irregularity", "seed", "closed_loop", "storage", "domain_id"):
         add_setting(p, name)
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
     add_overwrite(p)
@@ -35,6 +35,9 @@ def run(args: argparse.Namespace) -> int:
     from clm_ros.launcher import run_demo
 
     check_output(args.out, args.overwrite)
+    print(f"demo: ROS domain {args.domain_id}, discovery on loopback; watch it live from another terminal with "
+          f"ROS_DOMAIN_ID={args.domain_id} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (topics /wheel_loads, "
+          "/sleeper_response, /wheel_rail_response, /diagnostics)", flush=True)
     s = run_demo(
         args.out,
         vehicle=args.vehicle,
@@ -50,11 +53,15 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         closed_loop=args.closed_loop,
         storage=args.storage,
+        domain_id=args.domain_id,
         overwrite=args.overwrite,
     )
     counts = s["message_counts"]
+    used = 100.0 * s["feedback_used"] / s["feedback_total"] if s["feedback_total"] else 0.0
     print(f"demo: {counts.get('/wheel_loads', 0)} wheel-load messages, {counts.get('/sleeper_response', 0)} "
-          f"responses; lag median {quantity(s['lag_median_s'], 's')}, p99 {quantity(s['lag_p99_s'], 's')}")
+          f"responses; lag median {quantity(s['lag_median_s'], 's')}, p99 {quantity(s['lag_p99_s'], 's')}, max "
+          f"{quantity(s['lag_max_s'], 's')}; {s['feedback_used']} of {s['feedback_total']} answers used as "
+          f"feedback ({used:.1f} %)")
     print(f"demo: peak sleeper soil force {quantity(s['peak_sleeper_soil_force_N'], 'N')}, max rail deflection "
           f"{quantity(s['max_rail_deflection_m'], 'm')}, peak wheel load {quantity(s['peak_wheel_load_N'], 'N')}, "
           f"rms wheel load {quantity(s['rms_wheel_load_N'], 'N')}")
