@@ -123,6 +123,7 @@ class Engine:
         self.info = EngineInfo()
         self._cluster: Any = None
         self._client: Any = None
+        self._environ: dict[str, str | None] = {}
 
     def __enter__(self) -> Engine:
         dist = _distributed()
@@ -133,10 +134,15 @@ class Engine:
                 import dask
 
                 n = self.workers or os.cpu_count() or 1
+                # a nanny writes its pre-spawn environment into *this* process's os.environ before it spawns
+                # a worker (distributed/nanny.py); numba then refuses to compile with NUMBA_NUM_THREADS changed
+                # under its running thread pool: the caller's environment is put back after every spawn
+                self._environ = {k: os.environ.get(k) for k in WORKER_CONFIG["distributed.nanny.pre-spawn-environ"]}
                 with dask.config.set(WORKER_CONFIG):
                     self._cluster = dist.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                                       host="127.0.0.1", dashboard_address=None,
                                                       silence_logs=logging.ERROR)
+                self._restore_environ()
                 self._client = dist.Client(self._cluster, timeout=f"{START_TIMEOUT_S}s")
                 self._client.wait_for_workers(n, timeout=START_TIMEOUT_S)
                 self.info = EngineInfo("local", str(self._cluster.scheduler_address), n)
@@ -183,6 +189,15 @@ class Engine:
                 self._cluster.close()
             finally:
                 self._cluster = None
+                self._restore_environ()
+
+    def _restore_environ(self) -> None:
+        """Put back the variables a nanny's pre-spawn environment overwrote in this process."""
+        for k, v in self._environ.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
     def worker_cpu(self) -> float:
         """CPU time used so far by the worker processes, all threads, summed [s] (``getrusage``)."""
@@ -217,3 +232,4 @@ class Engine:
                     reason = f"{type(exc).__name__}: {exc}"
                 done(task, None, reason)
             fut.release()
+        self._restore_environ()  # a worker respawned during the run wrote its pre-spawn environment again

@@ -206,3 +206,18 @@ def test_progress_bar_on_a_terminal(tmp_path: Path) -> None:
     assert "clm study smoke:" in text and ("case/s" in text or "s/case" in text)
     assert "8/8" in text or "7/8" in text
     assert "8 cases (8 run, 0 reused)" in text
+
+
+def test_the_callers_environment_is_left_as_it_was(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A local cluster's nannies write their pre-spawn environment (NUMBA_NUM_THREADS=1, ...) into the calling
+    process; the engine puts it back, or numba refuses to compile anything afterwards in this process."""
+    from clm_core.studies.engine import WORKER_CONFIG, Engine
+
+    names = list(WORKER_CONFIG["distributed.nanny.pre-spawn-environ"])
+    monkeypatch.setenv(names[0], "7")
+    monkeypatch.delenv(names[-1], raising=False)
+    before = {k: os.environ.get(k) for k in names}
+    with Engine(workers=1) as engine:
+        assert engine.info.workers == 1
+        assert {k: os.environ.get(k) for k in names} == before
+    assert {k: os.environ.get(k) for k in names} == before
