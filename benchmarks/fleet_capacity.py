@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
                           f"{100 * t['late']:.2f} %; CPU/msg track {t['track_us']} us, vehicle {t['vehicle_us']} us",
                           flush=True)
             results[n] = runs
-            if all(f["carried"] for f in runs) and best == n - 1:
+            if all(f["carried"] for f in runs) and best == n - 1 and n >= 1:
                 best = n
             elif not args.no_stop:
                 break
