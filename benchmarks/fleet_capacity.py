@@ -27,6 +27,7 @@ recorder is not needed for these figures and costs CPU); ``--record`` adds it
 Usage::
 
     python benchmarks/fleet_capacity.py [--max-trains 8] [--duration 5] [--runs 2] [--rate 1000] [--record]
+                                        [--pair-process]
                                         [--no-stop] [--json] [--keep DIR]
 """
 
@@ -51,7 +52,8 @@ LAG_P99_LIMIT = 0.020
 LATE_LIMIT = 0.01
 
 
-def one_fleet(n: int, duration: float, rate: float, record: bool, out: Path) -> dict[str, Any]:
+def one_fleet(n: int, duration: float, rate: float, record: bool, out: Path, pair_process: bool = False
+              ) -> dict[str, Any]:
     """Run a fleet of ``n`` trains in a free ROS domain; its summary."""
     from clm_ros.fleet import run_fleet
     from clm_ros.processes import hold_domain_id
@@ -59,7 +61,7 @@ def one_fleet(n: int, duration: float, rate: float, record: bool, out: Path) -> 
     with hold_domain_id() as dom:
         return run_fleet(out, trains=n, duration=duration, rate_hz=rate, domain_id=dom, hold_domain=False,
                          record=record, verify=False, timeout=120 + 20 * duration * n, overwrite=True,
-                         progress=False)
+                         progress=False, pair_process=pair_process)
 
 
 def figures(s: dict[str, Any], rate: float) -> dict[str, Any]:
@@ -75,10 +77,10 @@ def figures(s: dict[str, Any], rate: float) -> dict[str, Any]:
             "lag_max_ms": 1e3 * t["vehicle_lag_max_s"],
             "feedback": t["feedback_used"] / max(t["feedback_total"], 1), "late": late,
             "in_equals_out": t["in_equals_out"],
-            "track_us": cpu.get("track_node"), "vehicle_us": cpu.get("vehicle_node"),
+            "track_us": cpu.get("track_node"), "vehicle_us": cpu.get("vehicle_node"), "pair_us": cpu.get("pair"),
             "carried": t["vehicle_lag_p99_s"] < LAG_P99_LIMIT and late < LATE_LIMIT and t["in_equals_out"],
         }
-        cores += sum(x for x in (cpu.get("track_node"), cpu.get("vehicle_node")) if x is not None) * rate / 1e6
+        cores += sum(x for x in cpu.values() if x is not None) * rate / 1e6
     rec = s.get("recorder_cpu_us_per_message")
     if rec:
         cores += rec * rate * len(trains) / 1e6
@@ -96,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=1000.0, help="wheel-load rate [Hz]")
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--record", action="store_true", help="also record the fleet (the recorder's CPU)")
+    ap.add_argument("--pair-process", action="store_true", help="each pair in one process (clm_ros.fleet_pair)")
     ap.add_argument("--no-stop", action="store_true", help="run every N up to --max-trains (figures of a loaded "
                     "machine)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON at the end")
@@ -103,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     print(f"fleet capacity: {os.cpu_count()} cores, trains of {args.duration:g} s at {args.rate:g} Hz, "
-          f"runs {args.runs}, recorder {'on' if args.record else 'off'}; load average at start "
+          f"runs {args.runs}, recorder {'on' if args.record else 'off'}, "
+          f"{'one process' if args.pair_process else 'two processes'} per train; load average at start "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
     results: dict[int, list[dict[str, Any]]] = {}
     best = 0
@@ -112,7 +116,8 @@ def main(argv: list[str] | None = None) -> int:
         for n in range(args.min_trains, args.max_trains + 1):
             runs = []
             for r in range(args.runs):
-                f = figures(one_fleet(n, args.duration, args.rate, args.record, root / f"n{n}_r{r}"), args.rate)
+                f = figures(one_fleet(n, args.duration, args.rate, args.record, root / f"n{n}_r{r}",
+                                      args.pair_process), args.rate)
                 runs.append(f)
                 w = f["worst"]
                 print(f"N={n} run {r + 1}: worst lag median {w['lag_median_ms']:.2f} ms, p99 {w['lag_p99_ms']:.2f} "
@@ -124,10 +129,11 @@ def main(argv: list[str] | None = None) -> int:
                 for name, t in f["trains"].items():
                     print(f"    {name}: lag median {t['lag_median_ms']:.2f} ms, p99 {t['lag_p99_ms']:.2f} ms, max "
                           f"{t['lag_max_ms']:.2f} ms; feedback {100 * t['feedback']:.1f} %; late "
-                          f"{100 * t['late']:.2f} %; CPU/msg track {t['track_us']} us, vehicle {t['vehicle_us']} us",
+                          f"{100 * t['late']:.2f} %; CPU/msg " + (f"pair process {t['pair_us']} us" if t["pair_us"] else
+                                                    f"track {t['track_us']} us, vehicle {t['vehicle_us']} us"),
                           flush=True)
             results[n] = runs
-            if all(f["carried"] for f in runs) and best == n - 1 and n >= 1:
+            if all(f["carried"] for f in runs) and (best == n - 1 or n == args.min_trains):
                 best = n
             elif not args.no_stop:
                 break

@@ -4,6 +4,7 @@
   namespaces, every pair's wheel-load messages answered once and in order (in = out, in the bag and by the
   vehicle's own counts), its answers equal bit for bit to the offline replay of its recorded wheel loads, every
   node exits 0 on SIGINT, and the overall figures are the worst of the per-train ones;
+- the same with each pair's two nodes in one process (``pair_process``);
 - bad arguments give a clear error before anything starts;
 - the launch file (``ros2 launch clm_ros fleet.launch.py``) makes the same pairs (run against stand-ins of
   launch/launch_ros, as tests/ros/test_packaging.py does).
@@ -71,6 +72,19 @@ def test_fleet_two_pairs_correct_and_summarised(tmp_path: Path, ros_domain_id: i
     assert o["lowest_feedback_fraction"] == min(t["feedback_used"] / t["feedback_total"] for t in trains)
     assert {p.name for p in out.glob("*.log")} == {f"train_{i}_{k}.log" for i in (3, 4)
                                                    for k in ("vehicle_node", "track_node")}
+
+
+def test_fleet_pair_process_same_answers(tmp_path: Path, ros_domain_id: int) -> None:
+    """``pair_process``: the pair's two nodes in one process (clm_ros.fleet_pair); the same topics and checks."""
+    from clm_ros.fleet import run_fleet
+
+    s = run_fleet(tmp_path / "f", trains=1, duration=DURATION, domain_id=ros_domain_id, hold_domain=False,
+                  timeout=240, progress=False, pair_process=True)
+    t = s["trains"]["train_0"]
+    assert s["pair_process"] and s["exit_codes"] == {"/train_0/pair": 0} and t["exit_codes"] == {"pair": 0}
+    assert t["messages_in"] == t["messages_out"] == t["feedback_total"] == N_MSG and t["in_equals_out"]
+    assert t["offline_equal"] and t["offline_compared"] == 2 * N_MSG and t["correct"]
+    assert set(t["cpu_us_per_message"]) == {"pair"}
 
 
 @pytest.mark.parametrize(("args", "message"), [

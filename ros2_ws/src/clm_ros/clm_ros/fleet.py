@@ -159,6 +159,7 @@ def run_fleet(
     timeout: float = 300.0,
     overwrite: bool = False,
     progress: bool = True,
+    pair_process: bool = False,
 ) -> dict[str, Any]:
     """Run ``trains`` vehicle + track node pairs; return the summary (also ``out_dir/summary.json``).
 
@@ -166,6 +167,8 @@ def run_fleet(
     record the pairs' topics to ``out_dir/fleet_bag`` (needed by ``verify``,
     the offline check). ``discovery_range``/``static_peers``: DDS discovery of
     the node processes (docs/fleet.md: pairs on several hosts).
+    ``pair_process``: each pair's two nodes in one process on one executor
+    (:mod:`clm_ros.fleet_pair`) instead of two processes.
 
     Raises
     ------
@@ -187,7 +190,7 @@ def run_fleet(
         out_dir=out_dir, trains=trains, first_index=first_index, vehicle=vehicle, speed=speed, duration=duration,
         track=track, soil=soil, model=model, rate_hz=rate_hz, dt=dt, n_sleepers=n_sleepers,
         irregularity=irregularity, seed=seed, closed_loop=closed_loop, storage=storage, record=record,
-        verify=verify, timeout=timeout, progress=progress,
+        verify=verify, timeout=timeout, progress=progress, pair_process=pair_process,
     )
     if not hold_domain:
         return _run_fleet(domain_id, env, **run)
@@ -198,7 +201,7 @@ def run_fleet(
 def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: int, first_index: int,
                vehicle: str, speed: float, duration: float, track: str, soil: str, model: str, rate_hz: float,
                dt: float, n_sleepers: int, irregularity: str, seed: int, closed_loop: bool, storage: str,
-               record: bool, verify: bool, timeout: float, progress: bool) -> dict[str, Any]:
+               record: bool, verify: bool, timeout: float, progress: bool, pair_process: bool) -> dict[str, Any]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.context import Context
@@ -232,8 +235,9 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
     def start(pair: _Pair, kind: str, params: Mapping[str, Any]) -> None:
         name = f"{pair.ns.strip('/')}_{kind}"
         logs[name] = open(out / f"{name}.log", "w")
+        module = "fleet_pair" if kind == "pair" else kind
         pair.procs[kind] = subprocess.Popen(
-            [sys.executable, "-m", f"clm_ros.{kind}", *ros_args(params), "-r", f"__ns:={pair.ns}"],
+            [sys.executable, "-m", f"clm_ros.{module}", *ros_args(params), "-r", f"__ns:={pair.ns}"],
             env=env, stdout=logs[name], stderr=subprocess.STDOUT,
         )
 
@@ -244,9 +248,20 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
                     raise ClmRosError(f"{pair.ns} {kind.replace('_', ' ')} exited early with code {p.returncode}; "
                                       f"see {out}/{pair.ns.strip('/')}_{kind}.log")
 
+    def vehicle_params(i: int) -> dict[str, Any]:
+        return {
+            "vehicle": vehicle, "speed": float(speed), "duration": float(duration), "rate": float(rate_hz),
+            "irregularity": irregularity, "seed": int(seed) + first_index + i, "closed_loop": closed_loop,
+            "track": track, "soil": soil, "model": model, "trains": 1, "exit_when_done": False,
+            "wait_for_subscribers": 2 if record else 1, "diagnostics_period": 0.5,
+        }
+
     try:
-        for pair in pairs:
-            start(pair, "track_node", track_params)
+        for i, pair in enumerate(pairs):
+            if pair_process:  # the vehicle waits for the recorder (wait_for_subscribers) before its train starts
+                start(pair, "pair", {**track_params, **vehicle_params(i)})
+            else:
+                start(pair, "track_node", track_params)
         watcher = rclpy.create_node("clm_fleet_watch", context=ctx)
         nodes.append(watcher)
         ex = EventsExecutor(context=ctx)
@@ -276,12 +291,8 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
         gc.collect()
         gc.freeze()
         for i, pair in enumerate(pairs):
-            start(pair, "vehicle_node", {
-                "vehicle": vehicle, "speed": float(speed), "duration": float(duration), "rate": float(rate_hz),
-                "irregularity": irregularity, "seed": int(seed) + first_index + i, "closed_loop": closed_loop,
-                "track": track, "soil": soil, "model": model, "trains": 1, "exit_when_done": False,
-                "wait_for_subscribers": 2 if record else 1, "diagnostics_period": 0.5,
-            })
+            if not pair_process:
+                start(pair, "vehicle_node", vehicle_params(i))
         t0 = time.monotonic()
         rec_cpu0 = time.process_time()
         while not all(p.final for p in pairs):
@@ -316,8 +327,8 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
             rec.abort()
         for n in nodes:
             n.destroy_node()
-        procs = {f"{p.ns}/{k}": q for k in ("vehicle_node", "track_node") for p in pairs for k2, q in p.procs.items()
-                 if k2 == k}
+        procs = {f"{p.ns}/{k}": q for k in ("vehicle_node", "track_node", "pair") for p in pairs
+                 for k2, q in p.procs.items() if k2 == k}
         codes = _stop(procs)
         for f in logs.values():
             f.close()
@@ -341,7 +352,7 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
         "n_sleepers": n_sleepers, "irregularity": irregularity, "seeds": [seed + first_index + i for i in
                                                                           range(trains)],
         "closed_loop": closed_loop, "bag": str(bag) if record else None, "ros_domain_id": dom,
-        "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"],
+        "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"], "pair_process": pair_process,
     })
     write_json(out / "summary.json", summary)
     bad = {k: c for k, c in codes.items() if c != 0}
@@ -422,7 +433,7 @@ def _offline_check(bag: Path, ns: str, track: str, soil: str, model: str, dt: fl
     from clm_core.params import load_model
     from clm_ros.replay import replay_bag
 
-    m = OnlineTrackModel(load_model(track, soil, model), dt=dt, n_sleepers=n_sleepers)  # type: ignore[arg-type]
+    m = OnlineTrackModel(load_model(track, soil, model), dt=dt, n_sleepers=n_sleepers)
     with tempfile.TemporaryDirectory(prefix="clm_fleet_") as tmp:
         stats = replay_bag(bag, Path(tmp) / "offline", m, topic=f"{ns}/wheel_loads", out_prefix=ns)
 

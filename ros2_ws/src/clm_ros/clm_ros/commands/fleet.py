@@ -38,6 +38,9 @@ def register(sub: Any) -> None:
                    "several hosts, docs/fleet.md)")
     p.add_argument("--static-peers", default="", metavar="HOSTS",
                    help="ROS_STATIC_PEERS of the nodes, e.g. '192.168.1.10;192.168.1.11' (docs/fleet.md)")
+    p.add_argument("--pair-process", action="store_true",
+                   help="each train's vehicle and track node in one process on one executor (default: two "
+                   "processes per train)")
     p.add_argument("--timeout", type=float, default=600.0, help="longest run [s] (default 600)")
     add_overwrite(p)
     p.set_defaults(func=run)
@@ -67,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed, closed_loop=args.closed_loop, storage=args.storage, domain_id=args.domain_id,
             record=record, verify=args.verify and record, discovery_range=args.discovery_range,
             static_peers=args.static_peers, timeout=args.timeout, overwrite=args.overwrite,
+            pair_process=args.pair_process,
         )
     except ClmRosError as exc:
         print(f"clm fleet: error: {exc}", file=sys.stderr)
