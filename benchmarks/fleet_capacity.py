@@ -15,10 +15,10 @@ trains (Thalys at 83.33 m/s, wheel loads at ``--rate`` Hz, closed loop),
 - the worst train, the CPU used (cores: the nodes' CPU per message x rate x N)
   and the load average.
 
-A train is carried when its lag p99 < 20 ms and it keeps real time (late
-publishes < 1 %); the benchmark stops after the first N where a train is not
-(or at ``--max-trains``) and prints the largest N whose every train was carried
-in every run. Target (issue 15): >= 4 on a quiet 2-core machine.
+A train is carried when its lag p99 < 20 ms (a train that falls out of real
+time has lags that grow without bound); the benchmark stops after the first N
+where a train is not (or at ``--max-trains``; ``--no-stop``: every N) and
+prints the largest N whose every train was carried in every run. Target (issue 15): >= 4 on a quiet 2-core machine.
 
 By default nothing is recorded (``--no-record`` of ``clm fleet``: the
 recorder is not needed for these figures and costs CPU); ``--record`` adds it
@@ -46,10 +46,8 @@ CLM_ROS_SRC = REPO / "ros2_ws" / "src" / "clm_ros"
 if str(CLM_ROS_SRC) not in sys.path:
     sys.path.insert(0, str(CLM_ROS_SRC))
 
-#: A train is carried while its answer lag p99 stays under this [s] ...
+#: A train is carried while its answer lag p99 stays under this [s] (every message answered).
 LAG_P99_LIMIT = 0.020
-#: ... and fewer than this fraction of its messages is published late (> 2 periods): real time kept.
-LATE_LIMIT = 0.01
 
 
 def one_fleet(n: int, duration: float, rate: float, record: bool, out: Path, pair_process: bool = False
@@ -78,7 +76,7 @@ def figures(s: dict[str, Any], rate: float) -> dict[str, Any]:
             "feedback": t["feedback_used"] / max(t["feedback_total"], 1), "late": late,
             "in_equals_out": t["in_equals_out"],
             "track_us": cpu.get("track_node"), "vehicle_us": cpu.get("vehicle_node"), "pair_us": cpu.get("pair"),
-            "carried": t["vehicle_lag_p99_s"] < LAG_P99_LIMIT and late < LATE_LIMIT and t["in_equals_out"],
+            "carried": t["vehicle_lag_p99_s"] < LAG_P99_LIMIT and t["in_equals_out"],
         }
         cores += sum(x for x in cpu.values() if x is not None) * rate / 1e6
     rec = s.get("recorder_cpu_us_per_message")
@@ -137,8 +135,8 @@ def main(argv: list[str] | None = None) -> int:
                 best = n
             elif not args.no_stop:
                 break
-    print(f"largest fleet carried (every train lag p99 < {1e3 * LAG_P99_LIMIT:g} ms, late < {100 * LATE_LIMIT:g} %, "
-          f"in every run): {best} train(s); load average at end {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"largest fleet carried (every train lag p99 < {1e3 * LAG_P99_LIMIT:g} ms in every run): {best} "
+          f"train(s); load average at end {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     if args.json:
         print(json.dumps({"largest_carried": best, "results": results}, indent=1))
     return 0
