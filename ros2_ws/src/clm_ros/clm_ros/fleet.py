@@ -107,14 +107,13 @@ class _Pair:
     procs: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     vehicle: dict[str, str] = field(default_factory=dict)
     final: dict[str, str] = field(default_factory=dict)
-    track_diag: int = 0
     cpu0: dict[str, float | None] = field(default_factory=dict)
     cpu_us: dict[str, float | None] = field(default_factory=dict)
     n0: int = 0
 
 
 class _Watch:
-    """The /diagnostics of every pair (the status names carry the nodes' namespaces)."""
+    """The vehicles' /diagnostics of every pair (their status names carry the nodes' namespaces)."""
 
     def __init__(self, pairs: list[_Pair]) -> None:
         self.pairs = {p.ns: p for p in pairs}
@@ -129,8 +128,6 @@ class _Watch:
                 pair.vehicle = {kv.key: kv.value for kv in status.values}
                 if pair.vehicle.get("final_train"):
                     pair.final = pair.vehicle
-            elif "track-soil" in status.name:
-                pair.track_diag += 1
 
 
 def run_fleet(
