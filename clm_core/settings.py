@@ -511,3 +511,11 @@ def _model_parameter_settings() -> dict[str, Setting[float]]:
 #: Per-run overrides of the scalar model parameters, ``<section>.<name>`` (``track.kb``, ``soil.kf``):
 #: automatic (from the preset or parameter file) unless given. Validated by :class:`clm_core.params.ModelParams`.
 MODEL_PARAMETERS: Mapping[str, Setting[float]] = _model_parameter_settings()
+
+# the fleet (clm fleet, issue 15.1): N vehicle + track node pairs on one ROS graph
+FLEET_TRAINS: Setting[int] = Setting("fleet_trains", int, 2, "-", "vehicle + track node pairs started, each in "
+                                     "its namespace /train_i", minimum=1, maximum=100, flags=("--trains",))
+FLEET_FIRST_INDEX: Setting[int] = Setting("fleet_first_index", int, 0, "-", "index i of the first pair (/train_i): "
+                                          "a second host starts further pairs", minimum=0, maximum=10000,
+                                          flags=("--first-index",))
+SETTINGS = {**SETTINGS, FLEET_TRAINS.name: FLEET_TRAINS, FLEET_FIRST_INDEX.name: FLEET_FIRST_INDEX}

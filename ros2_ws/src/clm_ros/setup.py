@@ -53,6 +53,7 @@ setup(
         "clm.commands": [
             "bags = clm_ros.commands.bags:register",
             "demo = clm_ros.commands.demo:register",
+            "fleet = clm_ros.commands.fleet:register",
             "replay = clm_ros.commands.replay:register",
         ],
     },

@@ -1,0 +1,89 @@
+"""``clm fleet``: N vehicle + track node pairs on one ROS graph, each in its namespace, checked and summarised.
+
+Its run options and their defaults are the run settings of :mod:`clm_core.settings`
+(as ``clm demo``'s); ``--trains`` and ``--first-index`` are the fleet's
+(docs/fleet.md: pairs on several hosts).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from clm_core.commands._options import add_overwrite, add_setting
+
+
+def register(sub: Any) -> None:
+    """Add the ``fleet`` sub-command."""
+    p = sub.add_parser(
+        "fleet",
+        help="many trains online: N vehicle + track node pairs over DDS, each in its namespace /train_i",
+        description="Starts N vehicle simulator + track-soil node pairs as separate processes, pair i in the "
+        "namespace /train_i, all in one ROS domain; records them to DIR/fleet_bag, checks every pair (each "
+        "wheel-load message answered once, in order; answers equal to the offline replay of its recorded wheel "
+        "loads) and writes per-train and overall figures to DIR/summary.json.",
+    )
+    p.add_argument("--out", default="results/fleet", help="output directory (default results/fleet)")
+    for name in ("fleet_trains", "fleet_first_index", "vehicle", "speed", "duration", "track", "soil", "model",
+                 "rate", "dt", "n_sleepers", "irregularity", "seed", "closed_loop", "storage", "domain_id"):
+        add_setting(p, name)
+    p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
+    p.add_argument("--no-record", dest="record", action="store_false",
+                   help="no bag (figures from the vehicles' own counts and lags; implies --no-verify)")
+    p.add_argument("--no-verify", dest="verify", action="store_false",
+                   help="skip the offline replay check of each pair's answers")
+    p.add_argument("--discovery-range", default="LOCALHOST", choices=("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT"),
+                   help="ROS_AUTOMATIC_DISCOVERY_RANGE of the nodes (default LOCALHOST; SUBNET for pairs on "
+                   "several hosts, docs/fleet.md)")
+    p.add_argument("--static-peers", default="", metavar="HOSTS",
+                   help="ROS_STATIC_PEERS of the nodes, e.g. '192.168.1.10;192.168.1.11' (docs/fleet.md)")
+    p.add_argument("--pair-process", action="store_true",
+                   help="each train's vehicle and track node in one process on one executor (default: two "
+                   "processes per train)")
+    p.add_argument("--timeout", type=float, default=600.0, help="longest run [s] (default 600)")
+    add_overwrite(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the fleet and print one line per train and the overall figures."""
+    from clm_core.commands._common import check_output, quantity
+    from clm_ros.errors import ClmRosError
+    from clm_ros.fleet import check_fleet, namespaces, run_fleet
+
+    try:
+        check_fleet(args.fleet_trains, args.fleet_first_index, args.duration)
+    except ClmRosError as exc:
+        print(f"clm fleet: error: {exc}", file=sys.stderr)
+        return 2
+    check_output(args.out, args.overwrite)
+    ns = namespaces(args.fleet_trains, args.fleet_first_index)
+    print(f"fleet: {args.fleet_trains} train(s) {ns[0]} ... {ns[-1]} in ROS domain {args.domain_id}, discovery "
+          f"{args.discovery_range}; watch them live with ROS_DOMAIN_ID={args.domain_id}", flush=True)
+    record = args.record
+    try:
+        s = run_fleet(
+            args.out, trains=args.fleet_trains, first_index=args.fleet_first_index, vehicle=args.vehicle,
+            speed=args.speed, duration=args.duration, track=args.track, soil=args.soil, model=args.model,
+            rate_hz=args.rate, dt=args.dt, n_sleepers=args.n_sleepers, irregularity=args.irregularity,
+            seed=args.seed, closed_loop=args.closed_loop, storage=args.storage, domain_id=args.domain_id,
+            record=record, verify=args.verify and record, discovery_range=args.discovery_range,
+            static_peers=args.static_peers, timeout=args.timeout, overwrite=args.overwrite,
+            pair_process=args.pair_process,
+        )
+    except ClmRosError as exc:
+        print(f"clm fleet: error: {exc}", file=sys.stderr)
+        return 1
+    for name, t in s["trains"].items():
+        used = 100.0 * t["feedback_used"] / t["feedback_total"] if t["feedback_total"] else 0.0
+        check = ("equal to offline replay" if t.get("offline_equal") else
+                 "offline replay not checked" if "offline_equal" not in t else "NOT equal to offline replay")
+        print(f"fleet: {name}: {t['messages_in']} in, {t['messages_out']} out; lag median "
+              f"{quantity(t['lag_median_s'], 's')}, p99 {quantity(t['lag_p99_s'], 's')}, max "
+              f"{quantity(t['lag_max_s'], 's')}; feedback {t['feedback_used']}/{t['feedback_total']} "
+              f"({used:.1f} %); {check}")
+    o = s["overall"]
+    print(f"fleet: worst lag p99 {quantity(o['worst_lag_p99_s'], 's')}, max {quantity(o['worst_lag_max_s'], 's')}; "
+          f"all correct: {o['all_correct']}; summary.json in {args.out}/")
+    return 0
