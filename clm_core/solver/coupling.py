@@ -20,8 +20,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError
 from clm_core.solver import _kernels as kern
 from clm_core.solver.loads import check_values, load_weights
@@ -32,8 +33,6 @@ if TYPE_CHECKING:
     from clm_core.solver.state import SimulatorState
     from clm_core.solver.window import Window
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True)

@@ -36,8 +36,8 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError
 from clm_core.solver import _frame_kernel as fk
 from clm_core.solver.records import FrameResponses
@@ -48,8 +48,6 @@ if TYPE_CHECKING:
     from clm_core.solver.state import SimulatorState
     from clm_core.solver.window import Window
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 def truncated(loads: fk.FrameLoads, r: int) -> fk.FrameLoads:

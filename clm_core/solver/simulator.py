@@ -33,8 +33,9 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError, ParameterError
 from clm_core.params import ModelParams
 from clm_core.solver import _kernels as kern
@@ -51,8 +52,6 @@ if TYPE_CHECKING:
     from clm_core.solver._frame_kernel import FrameLoads
     from clm_core.solver.records import FrameResponses
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Steps per kernel call at most (bounds the per-call work arrays: flat memory).
 CHUNK_STEPS = 2048

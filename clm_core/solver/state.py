@@ -14,14 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from clm_core.arrays import Array, IntArray
 from clm_core.solver import _kernels as kern
 from clm_core.solver.operators import DofLayout, Operator
 from clm_core.solver.window import Placement
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True)
