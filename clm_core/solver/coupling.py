@@ -29,9 +29,7 @@ from clm_core.solver.loads import check_values, load_weights
 from clm_core.solver.state import PendingStep
 
 if TYPE_CHECKING:
-    from clm_core.solver.operators import DofLayout
-    from clm_core.solver.state import SimulatorState
-    from clm_core.solver.window import Window
+    from clm_core.solver.state import SimulatorState, StepSetup
 
 
 
@@ -49,23 +47,15 @@ class TwoPhaseCoupling:
 
     Parameters
     ----------
-    layout : DofLayout
-        The DOF maps of the simulator's windows.
-    window : Window
-        The window's placement and shift rules.
-    dt : float
-        Time step [s].
-    work : tuple of two (n,) arrays
-        The kernel's work arrays ``z``, ``y`` (shared with the simulator's
-        other steps; ``z`` is zero between calls).
+    setup : StepSetup
+        The simulator's DOF layout, window rules, time step and work arrays.
     """
 
-    def __init__(self, layout: DofLayout, window: Window, dt: float, work: tuple[Array, Array]) -> None:
-        self._layout = layout
-        self._window = window
-        self._dt = dt
-        self._a1 = 2.0 / dt
-        self._work = work
+    def __init__(self, setup: StepSetup) -> None:
+        self._layout = setup.layout
+        self._window = setup.window
+        self._a1 = 2.0 / setup.dt
+        self._work = (setup.z, setup.y)
         self._chunk: _Chunk | None = None
 
     def begin(self, s: SimulatorState, P: Array) -> tuple[Array, Array, Array]:

@@ -37,16 +37,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from clm_core.arrays import Array, IntArray
+from clm_core.arrays import IntArray
 from clm_core.errors import InputError
 from clm_core.solver import _frame_kernel as fk
 from clm_core.solver.records import FrameResponses
 from clm_core.solver.window import Placement
 
 if TYPE_CHECKING:
-    from clm_core.solver.operators import DofLayout
-    from clm_core.solver.state import SimulatorState
-    from clm_core.solver.window import Window
+    from clm_core.solver.state import SimulatorState, StepSetup
 
 
 
@@ -60,32 +58,24 @@ class FrameRunner:
 
     Parameters
     ----------
-    layout : DofLayout
-        The DOF maps of the simulator's windows.
-    window : Window
-        The window's placement and shift rules.
+    setup : StepSetup
+        The simulator's DOF layout, window rules, time step and work arrays.
     touched : (n_t,) int array
         Global indices of the sleepers with overridden values, sorted
         (:attr:`clm_core.track.SleeperValues.touched`): the kernel moves the
         window itself only where the operator stays the same.
-    dt : float
-        Time step [s].
-    work : tuple of two (n,) arrays
-        The kernel's work arrays ``z``, ``y`` (shared with the simulator's
-        other steps; ``z`` is zero between calls).
     move : callable
         ``move(p)`` moves the window of the state being advanced to
         placement ``p`` (its state shifted by whole bays, the operator of
         ``p``).
     """
 
-    def __init__(self, layout: DofLayout, window: Window, touched: IntArray, dt: float,
-                 work: tuple[Array, Array], move: Callable[[Placement], None]) -> None:
-        self._layout = layout
-        self._window = window
+    def __init__(self, setup: StepSetup, touched: IntArray, move: Callable[[Placement], None]) -> None:
+        self._layout = setup.layout
+        self._window = setup.window
         self._touched = touched
-        self._dt = dt
-        self._work = work
+        self._dt = setup.dt
+        self._work = (setup.z, setup.y)
         self._move = move
         self._geo: tuple[Placement, tuple[object, ...]] | None = None
         self._backup_bufs: tuple[fk.FrameBackup, tuple[object, ...]] | None = None  # the restore buffers, also plain

@@ -44,7 +44,7 @@ from clm_core.solver.frames import FrameRunner
 from clm_core.solver.loads import Loads, check_values, load_entries, load_source, load_weights, wheel_arrays
 from clm_core.solver.operators import Operator, OperatorCache
 from clm_core.solver.records import Block, Snapshot
-from clm_core.solver.state import SimulatorState
+from clm_core.solver.state import SimulatorState, StepSetup
 from clm_core.solver.window import Placement, Window, shift_bays, shift_entries
 from clm_core.track import SleeperValues, TrackSystem, check_overridden_stretches
 
@@ -139,9 +139,9 @@ class TrackSimulator:
             prev_dofs=np.zeros(0, dtype=np.int64), prev_vals=np.zeros(0), pos=np.zeros(0), F=np.zeros(0),
             pk_force=np.zeros(N), pk_rail=np.zeros(N),
         )
-        work = (self._z, self._y)
-        self._coupling = TwoPhaseCoupling(self._layout, window, dt, work)
-        self._frames = FrameRunner(self._layout, window, values.touched, dt, work, self._move)
+        setup = StepSetup(self._layout, window, dt, self._z, self._y)
+        self._coupling = TwoPhaseCoupling(setup)
+        self._frames = FrameRunner(setup, values.touched, self._move)
         self._no_output = (np.zeros(0, dtype=np.int64), np.empty((0, N)))  # output buffers without a callback
 
     # ------------------------------------------------------------------ properties

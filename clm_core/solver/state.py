@@ -18,7 +18,7 @@ import numpy as np
 from clm_core.arrays import Array, IntArray
 from clm_core.solver import _kernels as kern
 from clm_core.solver.operators import DofLayout, Operator
-from clm_core.solver.window import Placement
+from clm_core.solver.window import Placement, Window
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,29 @@ class PendingStep:
     Gc: Array
     Wm: Array
     k: int
+
+
+@dataclass(frozen=True)
+class StepSetup:
+    """What does not change while a :class:`~clm_core.solver.TrackSimulator` runs, shared with its collaborators.
+
+    Attributes
+    ----------
+    layout : DofLayout
+        The DOF maps of the simulator's windows.
+    window : Window
+        The window's placement and shift rules.
+    dt : float
+        Time step [s].
+    z, y : (n,) arrays
+        The compiled steps' work arrays (``z`` is zero between calls).
+    """
+
+    layout: DofLayout
+    window: Window
+    dt: float
+    z: Array
+    y: Array
 
 
 @dataclass
@@ -126,4 +149,4 @@ class SimulatorState:
         np.maximum(self.pk_rail, rw, out=self.pk_rail)
 
 
-__all__ = ["PendingStep", "SimulatorState"]
+__all__ = ["PendingStep", "SimulatorState", "StepSetup"]
