@@ -54,16 +54,9 @@ class PendingStep:
 class StepSetup:
     """What does not change while a :class:`~clm_core.solver.TrackSimulator` runs, shared with its collaborators.
 
-    Attributes
-    ----------
-    layout : DofLayout
-        The DOF maps of the simulator's windows.
-    window : Window
-        The window's placement and shift rules.
-    dt : float
-        Time step [s].
-    z, y : (n,) arrays
-        The compiled steps' work arrays (``z`` is zero between calls).
+    ``layout``: the DOF maps of its windows; ``window``: the window's placement
+    and shift rules; ``dt``: the time step [s]; ``z``, ``y``: the (n,) work
+    arrays of the compiled steps (``z`` is zero between calls).
     """
 
     layout: DofLayout
