@@ -11,17 +11,22 @@ import operator
 from collections.abc import Mapping
 from typing import Any
 
-from clm_core.errors import ParameterError, StabilityError
+from clm_core.errors import ClmError, ParameterError, StabilityError
 
 
-def finite(name: str, value: Any) -> float:
-    """``value`` as a finite float."""
+def finite(name: str, value: Any, error: type[ClmError] = ParameterError) -> float:
+    """``value`` as a finite float.
+
+    ``error``: the exception raised for a value that is not a real number or
+    not finite (default :class:`~clm_core.errors.ParameterError`; e.g. an
+    input error of the caller's layer, with the same message).
+    """
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {value!r}: must be a real number") from None
+        raise error(f"{name} = {value!r}: must be a real number") from None
     if not math.isfinite(v):
-        raise ParameterError(f"{name} = {v}: must be finite (no NaN or infinity)")
+        raise error(f"{name} = {v}: must be finite (no NaN or infinity)")
     return v
 
 

@@ -19,16 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.signal import argrelmax
 
+from clm_core.arrays import Array, CArray
 from clm_core.errors import ParameterError
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
 from clm_core.track import TrackSystem
-
-Array = NDArray[np.float64]
-CArray = NDArray[np.complex128]
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,7 @@ import yaml
 from clm_core.checks import SOIL_MODEL_PARAMETERS, soil_values, track_values
 from clm_core.checks import finite as _check_finite
 from clm_core.checks import positive as _check_positive
-from clm_core.errors import ParameterError, PresetError
+from clm_core.errors import ClmError, ParameterError, PresetError
 
 SoilModel = Literal["rigid", "winkler", "lysmer", "clm"]
 SOIL_MODELS: tuple[str, ...] = get_args(SoilModel)
@@ -441,23 +441,34 @@ def model_from_settings(
     return load_model(track, soil, model, overrides)
 
 
-def read_yaml_mapping(path: str | Path, what: str = "parameter file") -> dict[str, Any]:
+def read_yaml_mapping(
+    path: str | Path, what: str = "parameter file", error: type[ClmError] = PresetError
+) -> dict[str, Any]:
     """The top-level mapping of the YAML file ``path``.
+
+    Parameters
+    ----------
+    path : path
+        The YAML file.
+    what : str
+        What the file is, for the messages (e.g. ``"study file"``).
+    error : type
+        The exception raised (default :class:`~clm_core.errors.PresetError`).
 
     Raises
     ------
     PresetError
-        ``"<what> '<path>' not found"``, not valid YAML, or not a mapping at the top level.
+        (or ``error``) ``"<what> '<path>' not found"``, not valid YAML, or not a mapping at the top level.
     """
     p = Path(path)
     if not p.is_file():
-        raise PresetError(f"{what} {str(p)!r} not found")
+        raise error(f"{what} {str(p)!r} not found")
     try:
         data = yaml.safe_load(p.read_text())
     except yaml.YAMLError as exc:
-        raise PresetError(f"{p}: not valid YAML ({exc})") from None
+        raise error(f"{p}: not valid YAML ({exc})") from None
     if not isinstance(data, dict):
-        raise PresetError(f"{p}: expected a mapping at the top level")
+        raise error(f"{p}: expected a mapping at the top level")
     return cast(dict[str, Any], data)
 
 

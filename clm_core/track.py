@@ -27,11 +27,10 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError, ParameterError, StabilityError
 from clm_core.params import PER_SLEEPER_NAMES, ModelParams
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 RailEnds = Literal["free", "pinned", "clamped"]
 
 

@@ -34,12 +34,13 @@ Reader (:class:`BagReader`): what a bag is
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import os
 import shutil
 import uuid
 from collections import Counter
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -100,6 +101,13 @@ def default_qos(reliability: str = "reliable") -> list[Qos]:
 
 
 # ============================================================================ writer
+
+
+def _quietly(release: Callable[[], object] | None) -> None:
+    """Call ``release`` (a rosbags writer's abort, a reader's close) if given, ignoring any exception it raises."""
+    if release is not None:
+        with contextlib.suppress(Exception):
+            release()
 
 
 class BagWriter:
@@ -232,11 +240,7 @@ class BagWriter:
     def abort(self) -> None:
         """Drop the bag: nothing is left at :attr:`path` nor in the temporary directory."""
         writer, self._writer = self._writer, None
-        if writer is not None:
-            try:
-                writer.abort()
-            except Exception:  # the directory is removed anyway
-                pass
+        _quietly(None if writer is None else writer.abort)  # the directory is removed anyway
         shutil.rmtree(self._tmp, ignore_errors=True)
 
     def __enter__(self) -> BagWriter:
@@ -411,11 +415,7 @@ class BagReader:
     def close(self) -> None:
         """Release the files."""
         reader, self._reader = self._reader, None
-        if reader is not None:
-            try:
-                reader.close()
-            except Exception:  # closing a damaged file must not mask the real error
-                pass
+        _quietly(None if reader is None else reader.close)  # closing a damaged file must not mask the real error
 
     def __enter__(self) -> BagReader:
         return self

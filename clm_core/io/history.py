@@ -89,16 +89,15 @@ from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.lib.format import open_memmap, write_array
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError
 
 if TYPE_CHECKING:
     from clm_core.solver import Block
     from clm_core.vehicle.coupled import CoupledResult
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Sleeper fields of a history, in the order of ``sleepers.csv``.
 SLEEPER_FIELDS = ("soil_force", "rail_deflection", "sleeper_displacement", "area_displacement")

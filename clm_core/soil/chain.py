@@ -35,17 +35,15 @@ from typing import Literal, TypeAlias, overload
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.linalg import lapack
 
+from clm_core.arrays import Array, CArray
 from clm_core.checks import chain_min_eigenvalue, finite, odd_count
 from clm_core.errors import ParameterError
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
 from clm_core.params import SoilParams
-
-Array = NDArray[np.float64]
-CArray = NDArray[np.complex128]
 
 #: Order of the CLM parameters in every Jacobian: m_f [kg], k_f [N/m],
 #: d_f [N s/m], k_c [N/m], d_c [N s/m].

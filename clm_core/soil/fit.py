@@ -57,8 +57,9 @@ from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array, CArray
 from clm_core.checks import chain_min_eigenvalue, clm_chain_admissible
 from clm_core.errors import ParameterError, StabilityError
 from clm_core.soil.chain import CHAIN_PARAMS
@@ -84,8 +85,6 @@ MassRule = Literal["nonnegative", "free"]
 #: Margin kept from the stability boundary when clipping d_c or k_c.
 CLIP_MARGIN = 0.05
 
-Array = NDArray[np.float64]
-CArray = NDArray[np.complex128]
 
 
 @dataclass(frozen=True)

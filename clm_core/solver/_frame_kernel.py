@@ -55,13 +55,10 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
 
+from clm_core.arrays import Array, IntArray
 from clm_core.solver import _kernels as kern
 from clm_core.solver._kernels import StepOperator, StepState, hermite_wheel
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: ``out.ctl[CTL_STATUS]`` values.
 DONE, STOP_SHIFT, STOP_RESPONSE, STOP_INVALID = 0, 1, 2, 3

@@ -39,10 +39,8 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from clm_core.arrays import Array, IntArray
 
 
 class StepOperator(NamedTuple):

@@ -1,12 +1,17 @@
 """Two-phase steps of the streaming simulator: the wheel forces are found by the caller (vehicle coupling).
 
-:class:`TwoPhaseSteps` is the part of :class:`clm_core.solver.TrackSimulator`
-that serves the implicit vehicle coupling (:mod:`clm_core.vehicle`):
-:meth:`~TwoPhaseSteps.begin_step` / :meth:`~TwoPhaseSteps.finish_step` (one
-step, Python) and :meth:`~TwoPhaseSteps.coupled_chunk` /
-:meth:`~TwoPhaseSteps.coupled_commit` (many steps handed to the compiled
-coupling, :mod:`clm_core.vehicle._coupled_kernel`). The simulator inherits
-them; they use its state and collaborators (see :mod:`clm_core.solver.simulator`).
+:class:`TwoPhaseCoupling` is the collaborator of
+:class:`clm_core.solver.TrackSimulator` that serves the implicit vehicle
+coupling (:mod:`clm_core.vehicle`): :meth:`~TwoPhaseCoupling.begin` /
+:meth:`~TwoPhaseCoupling.finish` (one step, Python) and
+:meth:`~TwoPhaseCoupling.chunk` / :meth:`~TwoPhaseCoupling.commit` (many
+steps handed to the compiled coupling, :mod:`clm_core.vehicle._coupled_kernel`).
+It holds what does not change while the simulator runs (the DOF layout, the
+window's rules, the time step, the kernel's work arrays) and the rows of the
+last chunk; the simulator passes its :class:`~clm_core.solver.state.SimulatorState`
+to every call, with the window already placed for the step's wheels, and
+keeps the public methods (:meth:`~clm_core.solver.TrackSimulator.begin_step`,
+...), the checks of their arguments and the restore of a refused call.
 """
 
 from __future__ import annotations
@@ -15,132 +20,101 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError
 from clm_core.solver import _kernels as kern
-from clm_core.solver.loads import check_values, load_weights, wheel_arrays
+from clm_core.solver.loads import check_values, load_weights
 from clm_core.solver.state import PendingStep
 
 if TYPE_CHECKING:
-    from clm_core.solver.operators import DofLayout
-    from clm_core.solver.state import SimulatorState
-    from clm_core.solver.window import Window
+    from clm_core.solver.state import SimulatorState, StepSetup
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True)
 class _Chunk:
-    """The rows handed out by the last :meth:`TwoPhaseSteps.coupled_chunk`."""
+    """The rows handed out by the last :meth:`TwoPhaseCoupling.chunk`."""
 
     positions: Array
     ldofs: IntArray
     lw: Array
 
 
-class TwoPhaseSteps:
-    """Two-phase and compiled coupled steps (a mixin of :class:`clm_core.solver.TrackSimulator`)."""
+class TwoPhaseCoupling:
+    """Two-phase and compiled coupled steps of a :class:`clm_core.solver.TrackSimulator` (a collaborator it holds).
 
-    # provided by TrackSimulator
-    _s: SimulatorState
-    _layout: DofLayout
-    _window: Window
-    _a1: float
-    _chunk: _Chunk | None
-    dt: float
+    Parameters
+    ----------
+    setup : StepSetup
+        The simulator's DOF layout, window rules, time step and work arrays.
+    """
 
-    if TYPE_CHECKING:
+    def __init__(self, setup: StepSetup) -> None:
+        self._layout = setup.layout
+        self._window = setup.window
+        self._a1 = 2.0 / setup.dt
+        self._work = (setup.z, setup.y)
+        self._chunk: _Chunk | None = None
 
-        @property
-        def t(self) -> float: ...
-
-        def _save(self) -> SimulatorState: ...
-
-        def _restore(self, saved: SimulatorState) -> None: ...
-
-        def _place(self, P: Array, what: str, t: float) -> None: ...
-
-        def _step_state(self) -> kern.StepState: ...
-
-        def _sleeper_fields(self) -> tuple[Array, Array, Array, Array]: ...
-
-    # ------------------------------------------------------------------ two-phase step
-
-    def begin_step(self, positions_next: ArrayLike) -> tuple[Array, Array, Array]:
-        """First half of a step whose wheel forces are found by the caller (vehicle coupling).
+    def begin(self, s: SimulatorState, P: Array) -> tuple[Array, Array, Array]:
+        """First half of a step whose wheel forces are found by the caller.
 
         Parameters
         ----------
-        positions_next : (n_w,) array_like
-            Wheel positions [m] at t + dt. The window may shift here.
+        s : SimulatorState
+            The state at time t, its window placed for ``P``; its pending step
+            is set here.
+        P : (n_w,) array
+            Wheel positions [m] at t + dt (NaN: absent).
 
         Returns
         -------
-        w_free : (n_w,) array
-            Rail deflection under each wheel at t + dt if the wheel forces at
-            t + dt were zero [m].
-        v_free : (n_w,) array
-            Rail velocity under each wheel at t + dt, same assumption [m/s].
-        G : (n_w, n_w) array
-            Compliance [m/N]: for forces P at t + dt, w = w_free + G @ P and
-            v = v_free + (2/dt) G @ P. Symmetric positive definite.
-
-        Notes
-        -----
-        Complete the step with :meth:`finish_step`; calling ``begin_step``
-        again discards the pending step. Absent wheels (NaN) give NaN rows.
+        w_free, v_free, G : (n_w,), (n_w,), (n_w, n_w) arrays
+            As :meth:`clm_core.solver.TrackSimulator.begin_step`: rail
+            deflection [m] and velocity [m/s] under each wheel with zero wheel
+            forces at t + dt, and the compliance [m/N].
         """
-        P, _ = wheel_arrays(positions_next, None, self.t, "begin_step")
-        saved = self._save()
-        try:
-            self._s.pending = None
-            self._place(P, "begin_step", self.t + self.dt)
-            s = self._s
-            op = s.op.kernel
-            dofs, wts = load_weights(self._layout, s.placement.first, P[None, :])
-            dofs, wts = dofs[0], wts[0]
-            env = s.op.env
-            n = s.u.size
-            x0 = np.empty_like(s.u)
-            kern.free_rhs(op.indptr, op.indices, op.Ka, op.Mb, s.u, s.v, s.prev_dofs, s.prev_vals, x0)
-            kern.solve_envelope(*env, x0)
-            W = P.size
-            Gc = np.zeros((n, W))
-            for j in range(W):
-                if np.isfinite(P[j]):
-                    b = np.zeros(n)
-                    np.add.at(b, dofs[4 * j : 4 * j + 4], wts[4 * j : 4 * j + 4])
-                    kern.solve_envelope(*env, b)
-                    Gc[:, j] = b
-            Wm = np.zeros((W, n))
-            for j in range(W):
-                np.add.at(Wm[j], dofs[4 * j : 4 * j + 4], wts[4 * j : 4 * j + 4])
-            w_free = Wm @ (s.u + x0)
-            v_free = Wm @ (self._a1 * x0 - s.v)
-            G = Wm @ Gc
-            absent = ~np.isfinite(P)
-            w_free[absent] = np.nan
-            v_free[absent] = np.nan
-            G[absent, :] = np.nan
-            G[:, absent] = np.nan
-            s.pending = PendingStep(P, x0, dofs, wts, Gc, Wm, s.k)
-        except BaseException:
-            self._restore(saved)
-            raise
+        op = s.op.kernel
+        dofs, wts = load_weights(self._layout, s.placement.first, P[None, :])
+        dofs, wts = dofs[0], wts[0]
+        env = s.op.env
+        n = s.u.size
+        x0 = np.empty_like(s.u)
+        kern.free_rhs(op.indptr, op.indices, op.Ka, op.Mb, s.u, s.v, s.prev_dofs, s.prev_vals, x0)
+        kern.solve_envelope(*env, x0)
+        W = P.size
+        Gc = np.zeros((n, W))
+        for j in range(W):
+            if np.isfinite(P[j]):
+                b = np.zeros(n)
+                np.add.at(b, dofs[4 * j : 4 * j + 4], wts[4 * j : 4 * j + 4])
+                kern.solve_envelope(*env, b)
+                Gc[:, j] = b
+        Wm = np.zeros((W, n))
+        for j in range(W):
+            np.add.at(Wm[j], dofs[4 * j : 4 * j + 4], wts[4 * j : 4 * j + 4])
+        w_free = Wm @ (s.u + x0)
+        v_free = Wm @ (self._a1 * x0 - s.v)
+        G = Wm @ Gc
+        absent = ~np.isfinite(P)
+        w_free[absent] = np.nan
+        v_free[absent] = np.nan
+        G[absent, :] = np.nan
+        G[:, absent] = np.nan
+        s.pending = PendingStep(P, x0, dofs, wts, Gc, Wm, s.k)
         return w_free, v_free, G
 
-    def finish_step(self, forces_next: ArrayLike) -> None:
-        """Complete the step begun with :meth:`begin_step` with the wheel forces [N] at t + dt.
+    def finish(self, s: SimulatorState, forces_next: ArrayLike, t_next: float) -> None:
+        """Complete the pending step of ``s`` with the wheel forces [N] at ``t_next`` = t + dt [s].
 
         Raises
         ------
         InputError
             No pending step, NaN forces or a size different from the
-            positions given to ``begin_step``; the state is then unchanged.
+            positions given to :meth:`begin`; ``s`` is then unchanged.
         """
-        s = self._s
         pend = s.pending
         if pend is None or pend.k != s.k:
             raise InputError("finish_step: no pending step (call begin_step first)")
@@ -148,7 +122,7 @@ class TwoPhaseSteps:
         F = np.array(forces_next, dtype=float, ndmin=1)
         if F.shape != P.shape:
             raise InputError(f"finish_step: forces have shape {F.shape}, begin_step had {P.shape} wheels")
-        check_values(P[None, :], F[None, :], np.array([self.t + self.dt]), "finish_step")
+        check_values(P[None, :], F[None, :], np.array([t_next]), "finish_step")
         F = np.where(np.isfinite(P), F, 0.0)
         du = pend.x0 + pend.Gc @ F
         s.u += du
@@ -158,62 +132,30 @@ class TwoPhaseSteps:
         s.pos, s.F = P.copy(), F.copy()
         s.k += 1
         s.pending = None
-        fs, rw = self._sleeper_fields()[:2]
-        np.maximum(s.pk_force, fs, out=s.pk_force)
-        np.maximum(s.pk_rail, rw, out=s.pk_rail)
+        s.update_peaks(self._layout)
 
     # ------------------------------------------------------------------ compiled two-phase steps
 
-    def coupled_chunk(self, positions: ArrayLike) -> tuple[int, kern.CoupledTrack]:
-        """Prepare consecutive two-phase steps for a compiled coupling kernel (vehicle coupling).
+    def chunk(self, s: SimulatorState, P: Array) -> tuple[int, kern.CoupledTrack]:
+        """The rows of ``P`` (S, n_w) the window of ``s`` holds, for a compiled coupling kernel.
 
-        The compiled equivalent of calling :meth:`begin_step` and
-        :meth:`finish_step` for each row of ``positions``
-        (:mod:`clm_core.vehicle._coupled_kernel`): the window is placed for
-        row 0 as :meth:`begin_step` would place it, then the rows it holds
-        without another shift are handed to the kernel, which advances the
-        state in place. Complete with :meth:`coupled_commit`.
-
-        Parameters
-        ----------
-        positions : (S, n_w) array_like
-            Wheel positions [m] at the next S step times t + dt, t + 2 dt, ...
-            (all finite).
-
-        Returns
-        -------
-        m : int
-            Leading rows (1 <= m <= S) the window holds without a shift.
-        track : CoupledTrack
-            The kernel's track inputs (:class:`clm_core.solver._kernels.CoupledTrack`):
-            the operator, the state (updated in place by the kernel), the
-            wheels' element DOFs and Hermite weights (m, 4 n_w) and the
-            columns ``cols[slot[d]] = K_eff^-1 e_d`` of every DOF they load.
-
-        Raises
-        ------
-        InputError
-            Non-finite positions, or wheels that the window cannot hold (as
-            :meth:`begin_step`).
+        ``s`` has its window placed for row 0. Returns the number ``m`` of
+        leading rows it holds without a shift and the kernel's track inputs,
+        as :meth:`clm_core.solver.TrackSimulator.coupled_chunk`; the rows are
+        kept for :meth:`commit`.
         """
-        P = np.ascontiguousarray(np.array(positions, dtype=float, ndmin=2))
-        if P.ndim != 2 or P.shape[0] < 1 or not np.all(np.isfinite(P)):
-            raise InputError(f"coupled_chunk: positions of shape {P.shape} must be finite rows (S >= 1, n_wheels)")
-        self._s.pending = None
-        self._place(P[0], "begin_step", self.t + self.dt)
-        s = self._s
         front, rear = P.max(axis=1), P.min(axis=1)
         viol = np.nonzero(self._window.outside(s.placement, front, rear))[0]
         m = P.shape[0] if viol.size == 0 else int(viol[0])
-        if m < 1:  # pragma: no cover - _place made row 0 fit
+        if m < 1:  # pragma: no cover - the simulator placed the window for row 0
             raise InputError(f"coupled_chunk: cannot place the window for wheels at {rear[0]:g} .. {front[0]:g} m")
         ldofs, lw = load_weights(self._layout, s.placement.first, P[:m])
         cols, slot = s.op.columns(ldofs)
         self._chunk = _Chunk(P[:m], ldofs, lw)
-        return m, kern.CoupledTrack(s.op.kernel, self._step_state(), ldofs, lw, cols, slot)
+        return m, kern.CoupledTrack(s.op.kernel, s.kernel_state(*self._work), ldofs, lw, cols, slot)
 
-    def coupled_commit(self, steps: int, forces_last: ArrayLike) -> None:
-        """Record that a kernel advanced ``steps`` rows of the last :meth:`coupled_chunk`.
+    def commit(self, s: SimulatorState, steps: int, forces_last: ArrayLike) -> None:
+        """Record in ``s`` that a kernel advanced ``steps`` rows of the last :meth:`chunk`.
 
         ``forces_last``: the wheel forces [N] of the last step made (the
         loads f_n of the next step).
@@ -226,7 +168,6 @@ class TwoPhaseSteps:
         if steps == 0 or c is None:
             return
         F = np.array(forces_last, dtype=float, ndmin=1)
-        s = self._s
         s.k += steps
         s.prev_dofs = c.ldofs[steps - 1].copy()
         s.prev_vals = c.lw[steps - 1] * np.repeat(F, 4)
@@ -234,4 +175,4 @@ class TwoPhaseSteps:
         s.pending = None
 
 
-__all__ = ["TwoPhaseSteps"]
+__all__ = ["TwoPhaseCoupling"]

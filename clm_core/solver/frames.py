@@ -1,14 +1,18 @@
 """The compiled per-frame path of the streaming simulator: many stamped wheel-load frames in one go.
 
-:class:`FrameSteps` is the part of :class:`clm_core.solver.TrackSimulator`
+:class:`FrameRunner` is the collaborator of :class:`clm_core.solver.TrackSimulator`
 that advances through *frames* (one ``clm_msgs/WheelLoads`` message each:
 a stamp, wheel positions and forces) rather than through steps: the online
 model (:mod:`clm_core.online`) hands it every waiting frame at once, and one
 compiled kernel (:func:`clm_core.solver._frame_kernel.run_frames`) integrates
 through them, interpolating the wheels linearly between the frames' stamps,
 computing the Hermite load weights and recording each frame's response. It
-returns to Python only when the window must move (a shift by whole bays,
-:meth:`TrackSimulator._move`, then it resumes) or when a frame fails.
+returns to Python only when the window must move (a shift by whole bays, done
+by the simulator through the ``move`` it passes, then it resumes) or when a
+frame fails. The runner holds what does not change while the simulator runs
+(the DOF layout, the window's rules, the kernel's work arrays and control
+registers) and its caches (the window geometry as the kernel takes it, the
+restore buffers); the simulator passes its state to every call.
 
 A frame fails when its response is not finite or beyond the given bounds,
 or when its wheels cannot be placed in the window part-way through its
@@ -28,24 +32,19 @@ depend on how a stream is split into calls.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
+from clm_core.arrays import IntArray
 from clm_core.errors import InputError
 from clm_core.solver import _frame_kernel as fk
 from clm_core.solver.records import FrameResponses
 from clm_core.solver.window import Placement
 
 if TYPE_CHECKING:
-    from clm_core.solver import _kernels as kern
-    from clm_core.solver.operators import DofLayout, OperatorCache
-    from clm_core.solver.state import SimulatorState
-    from clm_core.solver.window import Window
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+    from clm_core.solver.state import SimulatorState, StepSetup
 
 
 
@@ -54,39 +53,43 @@ def truncated(loads: fk.FrameLoads, r: int) -> fk.FrameLoads:
     return loads._replace(ticks=loads.ticks[: r + 1], k_end=loads.k_end[:r], offsets=loads.offsets[: r + 1])
 
 
-class FrameSteps:
-    """Advance through stamped frames of wheel loads (a mixin of :class:`clm_core.solver.TrackSimulator`)."""
+class FrameRunner:
+    """Advance a simulator's state through stamped frames of wheel loads (a collaborator of the simulator).
 
-    # provided by TrackSimulator
-    _s: SimulatorState
-    _window: Window
-    _layout: DofLayout
-    _z: Array
-    _y: Array
-    _ops: OperatorCache
+    Parameters
+    ----------
+    setup : StepSetup
+        The simulator's DOF layout, window rules, time step and work arrays.
+    touched : (n_t,) int array
+        Global indices of the sleepers with overridden values, sorted
+        (:attr:`clm_core.track.SleeperValues.touched`): the kernel moves the
+        window itself only where the operator stays the same.
+    move : callable
+        ``move(p)`` moves the window of the state being advanced to
+        placement ``p`` (its state shifted by whole bays, the operator of
+        ``p``).
+    """
 
-    if TYPE_CHECKING:
+    def __init__(self, setup: StepSetup, touched: IntArray, move: Callable[[Placement], None]) -> None:
+        self._layout = setup.layout
+        self._window = setup.window
+        self._touched = touched
+        self._dt = setup.dt
+        self._work = (setup.z, setup.y)
+        self._move = move
+        self._geo: tuple[Placement, tuple[object, ...]] | None = None
+        self._backup_bufs: tuple[fk.FrameBackup, tuple[object, ...]] | None = None  # the restore buffers, also plain
+        self._ctl = (np.zeros(8, dtype=np.int64), np.zeros(4))  # the kernel's control registers
 
-        @property
-        def n_sleepers(self) -> int: ...
-
-        def time_of_step(self, n: int) -> float: ...
-
-        def _move(self, p: Placement) -> None: ...
-
-        def _step_state(self) -> kern.StepState: ...
-
-    _frame_geo: tuple[Placement, tuple[object, ...]] | None = None
-    _frame_backup: tuple[fk.FrameBackup, tuple[object, ...]] | None = None  # the restore buffers, also plain
-    _frame_ctl: tuple[IntArray, Array]  # the kernel's control registers (set by TrackSimulator)
-
-    def advance_frames(
-        self, loads: fk.FrameLoads, max_force: float = math.inf, max_displacement: float = math.inf
+    def advance(
+        self, s: SimulatorState, loads: fk.FrameLoads, max_force: float = math.inf, max_displacement: float = math.inf
     ) -> FrameResponses:
-        """Advance through R frames of wheel loads; the response at each frame's step.
+        """Advance ``s`` through R frames of wheel loads; the response at each frame's step.
 
         Parameters
         ----------
+        s : SimulatorState
+            The simulator's state, advanced in place.
         loads : FrameLoads
             The frames (:class:`clm_core.solver._frame_kernel.FrameLoads`):
             times in integer ticks with the step a whole number of ticks,
@@ -114,27 +117,26 @@ class FrameSteps:
         InputError
             A response step before the current step (time going backwards).
         """
-        s = self._s
         R, W, M = len(loads.k_end), len(loads.P_prev), len(loads.positions)
         if R and loads.k_end[0] < s.k:
             raise InputError(f"advance_frames: frame 0 ends at step {int(loads.k_end[0])}, before the current step "
                              f"{s.k} (time going backwards)")
-        sleepers = np.empty((4, R, self.n_sleepers))
+        sleepers = np.empty((4, R, self._window.n_sleepers))
         wheels = np.empty((2, M))
         q = max(4 * W, len(s.prev_dofs))
-        ctl, ctl_f = self._frame_ctl
+        ctl, ctl_f = self._ctl
         ctl_f[fk.CTF_MAX_FORCE] = max_force
         ctl_f[fk.CTF_MAX_DISP] = max_displacement
         first = np.empty(R, dtype=np.int64)
         out = fk.FrameOutputs(sleepers, first, wheels, np.empty(q, dtype=np.int64), np.empty(q), np.empty((2, W)),
                               ctl, ctl_f)
         saved = (s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F)
-        done, status, failure = self._frames(loads, out)
+        done, status, failure = self._frames(s, loads, out)
         if status == fk.STOP_INVALID:  # nothing of the frame was done: the state is that after the one before
             rule, wheel = int(ctl[fk.CTL_RULE]), int(ctl[fk.CTL_WHEEL])
             return FrameResponses(first, sleepers, wheels, done, failure, status, rule, wheel)
         if status != fk.DONE:
-            bk = self._backup(W)
+            bk = self._backup(s, W)
             s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F = saved
             s.u[:] = bk.u
             s.v[:] = bk.v
@@ -143,26 +145,26 @@ class FrameSteps:
             loads.P_prev[:] = bk.P_prev
             loads.F_prev[:] = bk.F_prev
             if done:
-                again, st, why = self._frames(truncated(loads, done), out)
+                again, st, why = self._frames(s, truncated(loads, done), out)
                 if st != fk.DONE or again != done:  # pragma: no cover - the computation is deterministic
                     raise RuntimeError(f"advance_frames: replay of {done} frames gave {again} ({why})")
         return FrameResponses(first, sleepers, wheels, done, failure, status)
 
-    def _frames(self, loads: fk.FrameLoads, out: fk.FrameOutputs) -> tuple[int, int, str]:
-        """Run the kernel through ``loads``, moving the window when it asks; (frames done, status, failure)."""
+    def _frames(self, s: SimulatorState, loads: fk.FrameLoads, out: fk.FrameOutputs) -> tuple[int, int, str]:
+        """Run the kernel through ``loads`` from ``s``, moving the window when asked; (frames done, status, failure)."""
         ctl = out.ctl
-        s = self._s
         ctl[fk.CTL_K] = s.k
         ctl[fk.CTL_FRAME] = 0
         ctl[fk.CTL_BACKUP] = 1
         R = len(loads.k_end)
-        self._backup(len(loads.P_prev))
-        assert self._frame_backup is not None
-        args = (tuple(loads), self._frame_backup[1], tuple(out))
+        self._backup(s, len(loads.P_prev))
+        assert self._backup_bufs is not None
+        args = (tuple(loads), self._backup_bufs[1], tuple(out))
+        z, y = self._work
         while True:
             k_before = s.k
-            status = fk.run_frames((s.op.kernel_plain, (s.u, s.v, self._z, self._y, s.prev_dofs, s.prev_vals,
-                                    s.pk_force, s.pk_rail), self._geometry(), *args))
+            status = fk.run_frames((s.op.kernel_plain, (s.u, s.v, z, y, s.prev_dofs, s.prev_vals,
+                                    s.pk_force, s.pk_rail), self._geometry(s.placement), *args))
             k, j, _, q, _, rule, wheel, first = ctl.tolist()
             ctl[fk.CTL_BACKUP] = 0
             s.k = k
@@ -180,7 +182,7 @@ class FrameSteps:
                 return j, status, (f"the response is not finite or beyond its bounds (soil force "
                                    f"{out.ctl_f[fk.CTF_MAX_FORCE]:g} N, displacement {out.ctl_f[fk.CTF_MAX_DISP]:g} m)")
             front, rear = float(out.ctl_f[fk.CTF_FRONT]), float(out.ctl_f[fk.CTF_REAR])
-            t = self.time_of_step(s.k + 1)
+            t = s.t0 + (s.k + 1) * self._dt
             win = self._window
             try:
                 if not win.follow:
@@ -190,10 +192,9 @@ class FrameSteps:
                 return j, fk.STOP_SHIFT, str(exc)
             self._move(p)
 
-    def _geometry(self) -> tuple[object, ...]:
-        """The window as the kernel takes it (:class:`~clm_core.solver._frame_kernel.FrameGeometry`, plain; cached)."""
-        p = self._s.placement
-        cached = self._frame_geo
+    def _geometry(self, p: Placement) -> tuple[object, ...]:
+        """The window at ``p`` as the kernel takes it (:class:`~._frame_kernel.FrameGeometry`, plain; cached)."""
+        cached = self._geo
         if cached is not None and cached[0] == p:
             return cached[1]
         lay, win = self._layout, self._window
@@ -201,22 +202,21 @@ class FrameSteps:
         orient = {"forward": fk.ORIENT_FORWARD, "backward": fk.ORIENT_BACKWARD}.get(p.orientation, fk.ORIENT_FREE)
         geo = tuple(fk.FrameGeometry(p.first, orient, float(lay.node_x_rel[0]), float(lay.spacing), float(lay.Le),
                                      int(lay.n_el), lay.rail_w, lay.rail_th, lo, hi, win.n_sleepers,
-                                     lay.dofs_per_bay, self._ops.values.touched))
-        self._frame_geo = (p, geo)
+                                     lay.dofs_per_bay, self._touched))
+        self._geo = (p, geo)
         return geo
 
-    def _backup(self, W: int) -> fk.FrameBackup:
-        """The restore buffers for a run (state sizes fixed; at least ``W`` wheel slots)."""
-        cached = self._frame_backup
+    def _backup(self, s: SimulatorState, W: int) -> fk.FrameBackup:
+        """The restore buffers for a run from ``s`` (state sizes fixed; ``W`` wheel slots)."""
+        cached = self._backup_bufs
         if cached is None or cached[0].P_prev.shape[0] != W:
-            s = self._s
             bk = fk.FrameBackup(np.empty_like(s.u), np.empty_like(s.v), np.empty_like(s.pk_force),
                                 np.empty_like(s.pk_rail), np.empty(W), np.empty(W))
             if cached is not None:
                 old = cached[0]
                 bk = bk._replace(u=old.u, v=old.v, pk_force=old.pk_force, pk_rail=old.pk_rail)
-            cached = self._frame_backup = (bk, tuple(bk))
+            cached = self._backup_bufs = (bk, tuple(bk))
         return cached[0]
 
 
-__all__ = ["FrameSteps", "truncated"]
+__all__ = ["FrameRunner", "truncated"]

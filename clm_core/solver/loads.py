@@ -24,14 +24,13 @@ from collections.abc import Callable
 from typing import Union
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError
 from clm_core.solver import _kernels as kern
 from clm_core.solver.operators import DofLayout
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 #: A load function: time [s] -> (positions [m], forces [N]) of the wheels, arrays (n_w,).
 LoadFunction = Callable[[float], tuple[ArrayLike, ArrayLike]]
 #: A vectorised load source: step times (S,) [s] -> (positions, forces), arrays (S, n_w).
@@ -83,14 +82,13 @@ class LoadTable:
             raise InputError(
                 f"load table: time must increase strictly; row {i} has t = {tt[i]:g} s after {tt[i - 1]:g} s"
             )
-        present = np.isfinite(P)
-        badf = present & ~np.isfinite(F)
-        if badf.any():
-            r, c = np.argwhere(badf)[0]
+        bad_force = first_unfinite_force(P, F)
+        if bad_force is not None:
+            r, c = bad_force
             raise InputError(
                 f"load table: wheel {c + 1} at t = {tt[r]:g} s has position {P[r, c]:g} m but force {F[r, c]}"
             )
-        self.t, self.positions, self.forces = tt, P, np.where(present, F, 0.0)
+        self.t, self.positions, self.forces = tt, P, np.where(np.isfinite(P), F, 0.0)
         self.n_wheels = P.shape[1]
 
     def __call__(self, t: ArrayLike) -> tuple[Array, Array]:
@@ -289,6 +287,19 @@ def load_entries(layout: DofLayout, first: int, P: Array, F: Array) -> tuple[Int
     return d[0].copy(), (w[0] * np.repeat(F, 4)).copy()
 
 
+def first_unfinite_force(P: Array, F: Array) -> tuple[int, int] | None:
+    """The first (row, wheel) where a wheel on the track has a NaN or infinite force, or None.
+
+    ``P``, ``F``: (S, W) wheel positions [m] (NaN: not on the track) and
+    forces [N]; rows are scanned in order, wheels within a row.
+    """
+    bad = np.isfinite(P) & ~np.isfinite(F)
+    if not bad.any():
+        return None
+    r, c = np.argwhere(bad)[0]
+    return int(r), int(c)
+
+
 def check_values(P: Array, F: Array, t: Array, what: str) -> None:
     """Refuse NaN/inf forces on present wheels, infinite positions, forces on absent wheels.
 
@@ -307,12 +318,11 @@ def check_values(P: Array, F: Array, t: Array, what: str) -> None:
         raise InputError(
             f"{what}: wheel {c} position {P[r, c]} m at t = {t[r]:g} s: must be finite (NaN = not on the track)"
         )
-    present = np.isfinite(P)
-    bad = present & ~np.isfinite(F)
-    if bad.any():
-        r, c = np.argwhere(bad)[0]
+    bad_force = first_unfinite_force(P, F)
+    if bad_force is not None:
+        r, c = bad_force
         raise InputError(f"{what}: wheel {c} force {F[r, c]} N at t = {t[r]:g} s: must be finite")
-    bad = ~present & np.isfinite(F) & (F != 0.0)
+    bad = ~np.isfinite(P) & np.isfinite(F) & (F != 0.0)
     if bad.any():
         r, c = np.argwhere(bad)[0]
         raise InputError(

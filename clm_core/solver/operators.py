@@ -29,16 +29,13 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import ParameterError, StabilityError
 from clm_core.params import ModelParams
 from clm_core.solver import _kernels as kern
 from clm_core.solver.window import Orientation, Placement, Window
 from clm_core.track import SleeperValues, TrackSystem, assemble
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 class Envelope(NamedTuple):

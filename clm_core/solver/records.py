@@ -15,10 +15,8 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from clm_core.arrays import Array, IntArray
 
 
 @dataclass(frozen=True)

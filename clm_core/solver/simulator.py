@@ -13,7 +13,11 @@ It holds, and delegates to:
   the one place where overrides are applied);
 - its :class:`~clm_core.solver.state.SimulatorState`: everything that
   changes while it runs, copied before each call and restored when the call
-  is refused.
+  is refused;
+- a :class:`~clm_core.solver.coupling.TwoPhaseCoupling` (the two-phase and
+  compiled coupled steps of the vehicle coupling) and a
+  :class:`~clm_core.solver.frames.FrameRunner` (the compiled per-frame path of
+  the online model), to which it passes its state at every call.
 
 The compiled steps (:func:`clm_core.solver._kernels.run_steps`) get the
 operator, the state, the loads and the output buffers in one typed
@@ -26,32 +30,35 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError, ParameterError
 from clm_core.params import ModelParams
 from clm_core.solver import _kernels as kern
-from clm_core.solver.coupling import TwoPhaseSteps, _Chunk
-from clm_core.solver.frames import FrameSteps
+from clm_core.solver.coupling import TwoPhaseCoupling
+from clm_core.solver.frames import FrameRunner
 from clm_core.solver.loads import Loads, check_values, load_entries, load_source, load_weights, wheel_arrays
 from clm_core.solver.operators import Operator, OperatorCache
 from clm_core.solver.records import Block, Snapshot
-from clm_core.solver.state import SimulatorState
+from clm_core.solver.state import SimulatorState, StepSetup
 from clm_core.solver.window import Placement, Window, shift_bays, shift_entries
 from clm_core.track import SleeperValues, TrackSystem, check_overridden_stretches
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+if TYPE_CHECKING:
+    from clm_core.solver._frame_kernel import FrameLoads
+    from clm_core.solver.records import FrameResponses
+
 
 #: Steps per kernel call at most (bounds the per-call work arrays: flat memory).
 CHUNK_STEPS = 2048
 _TOL = 1e-9
 
 
-class TrackSimulator(TwoPhaseSteps, FrameSteps):
+class TrackSimulator:
     """Streaming simulator of the track–soil model under moving wheel loads.
 
     Parameters
@@ -132,8 +139,9 @@ class TrackSimulator(TwoPhaseSteps, FrameSteps):
             prev_dofs=np.zeros(0, dtype=np.int64), prev_vals=np.zeros(0), pos=np.zeros(0), F=np.zeros(0),
             pk_force=np.zeros(N), pk_rail=np.zeros(N),
         )
-        self._chunk: _Chunk | None = None
-        self._frame_ctl = (np.zeros(8, dtype=np.int64), np.zeros(4))  # control registers of the per-frame kernel
+        setup = StepSetup(self._layout, window, dt, self._z, self._y)
+        self._coupling = TwoPhaseCoupling(setup)
+        self._frames = FrameRunner(setup, values.touched, self._move)
         self._no_output = (np.zeros(0, dtype=np.int64), np.empty((0, N)))  # output buffers without a callback
 
     # ------------------------------------------------------------------ properties
@@ -236,8 +244,8 @@ class TrackSimulator(TwoPhaseSteps, FrameSteps):
         self._move(self._window.place(self._s.placement, P, what, t))
 
     def _step_state(self) -> kern.StepState:
-        s = self._s
-        return kern.StepState(s.u, s.v, self._z, self._y, s.prev_dofs, s.prev_vals, s.pk_force, s.pk_rail)
+        """The state as the compiled steps take it (arrays shared, updated in place by the kernel)."""
+        return self._s.kernel_state(self._z, self._y)
 
     # ------------------------------------------------------------------ public API
 
@@ -478,20 +486,125 @@ class TrackSimulator(TwoPhaseSteps, FrameSteps):
                 peak_wheel_deflection=np.max(np.where(np.isfinite(P), out.wdefl, -np.inf), axis=0),
             ))
 
+    # ------------------------------------------------------------------ two-phase steps (vehicle coupling)
+
+    def begin_step(self, positions_next: ArrayLike) -> tuple[Array, Array, Array]:
+        """First half of a step whose wheel forces are found by the caller (vehicle coupling).
+
+        Parameters
+        ----------
+        positions_next : (n_w,) array_like
+            Wheel positions [m] at t + dt. The window may shift here.
+
+        Returns
+        -------
+        w_free : (n_w,) array
+            Rail deflection under each wheel at t + dt if the wheel forces at
+            t + dt were zero [m].
+        v_free : (n_w,) array
+            Rail velocity under each wheel at t + dt, same assumption [m/s].
+        G : (n_w, n_w) array
+            Compliance [m/N]: for forces P at t + dt, w = w_free + G @ P and
+            v = v_free + (2/dt) G @ P. Symmetric positive definite.
+
+        Notes
+        -----
+        Complete the step with :meth:`finish_step`; calling ``begin_step``
+        again discards the pending step. Absent wheels (NaN) give NaN rows.
+        """
+        P, _ = wheel_arrays(positions_next, None, self.t, "begin_step")
+        saved = self._save()
+        try:
+            self._s.pending = None
+            self._place(P, "begin_step", self.t + self.dt)
+            return self._coupling.begin(self._s, P)
+        except BaseException:
+            self._restore(saved)
+            raise
+
+    def finish_step(self, forces_next: ArrayLike) -> None:
+        """Complete the step begun with :meth:`begin_step` with the wheel forces [N] at t + dt.
+
+        Raises
+        ------
+        InputError
+            No pending step, NaN forces or a size different from the
+            positions given to ``begin_step``; the state is then unchanged.
+        """
+        self._coupling.finish(self._s, forces_next, self.t + self.dt)
+
+    def coupled_chunk(self, positions: ArrayLike) -> tuple[int, kern.CoupledTrack]:
+        """Prepare consecutive two-phase steps for a compiled coupling kernel (vehicle coupling).
+
+        The compiled equivalent of calling :meth:`begin_step` and
+        :meth:`finish_step` for each row of ``positions``
+        (:mod:`clm_core.vehicle._coupled_kernel`): the window is placed for
+        row 0 as :meth:`begin_step` would place it, then the rows it holds
+        without another shift are handed to the kernel, which advances the
+        state in place. Complete with :meth:`coupled_commit`.
+
+        Parameters
+        ----------
+        positions : (S, n_w) array_like
+            Wheel positions [m] at the next S step times t + dt, t + 2 dt, ...
+            (all finite).
+
+        Returns
+        -------
+        m : int
+            Leading rows (1 <= m <= S) the window holds without a shift.
+        track : CoupledTrack
+            The kernel's track inputs (:class:`clm_core.solver._kernels.CoupledTrack`):
+            the operator, the state (updated in place by the kernel), the
+            wheels' element DOFs and Hermite weights (m, 4 n_w) and the
+            columns ``cols[slot[d]] = K_eff^-1 e_d`` of every DOF they load.
+
+        Raises
+        ------
+        InputError
+            Non-finite positions, or wheels that the window cannot hold (as
+            :meth:`begin_step`).
+        """
+        P = np.ascontiguousarray(np.array(positions, dtype=float, ndmin=2))
+        if P.ndim != 2 or P.shape[0] < 1 or not np.all(np.isfinite(P)):
+            raise InputError(f"coupled_chunk: positions of shape {P.shape} must be finite rows (S >= 1, n_wheels)")
+        self._s.pending = None
+        self._place(P[0], "begin_step", self.t + self.dt)
+        return self._coupling.chunk(self._s, P)
+
+    def coupled_commit(self, steps: int, forces_last: ArrayLike) -> None:
+        """Record that a kernel advanced ``steps`` rows of the last :meth:`coupled_chunk`.
+
+        ``forces_last``: the wheel forces [N] of the last step made (the
+        loads f_n of the next step).
+        """
+        self._coupling.commit(self._s, steps, forces_last)
+
+    # ------------------------------------------------------------------ stamped frames (online model)
+
+    def advance_frames(
+        self, loads: FrameLoads, max_force: float = math.inf, max_displacement: float = math.inf
+    ) -> FrameResponses:
+        """Advance through R frames of wheel loads; the response at each frame's step.
+
+        See :meth:`clm_core.solver.frames.FrameRunner.advance` (``loads``: a
+        :class:`clm_core.solver._frame_kernel.FrameLoads`, response steps
+        counted since :meth:`initialize`; ``max_force`` [N] and
+        ``max_displacement`` [m] bound a response). When a frame fails the
+        state is that after the frame before it.
+
+        Raises
+        ------
+        InputError
+            A response step before the current step (time going backwards).
+        """
+        return self._frames.advance(self._s, loads, max_force, max_displacement)
+
     # ------------------------------------------------------------------ outputs
 
     def _sleeper_fields(self) -> tuple[Array, Array, Array, Array]:
         """Soil force [N], rail deflection above, sleeper and contact-area displacement [m] per sleeper."""
-        s, lay = self._s, self._layout
-        u, v = s.u, s.v
-        zs, vs = u[lay.s_dof], v[lay.s_dof]
-        if lay.a_dof[0] >= 0:
-            xa, va = u[lay.a_dof], v[lay.a_dof]
-        else:
-            xa, va = np.zeros_like(zs), np.zeros_like(vs)
-        op = s.op.kernel
-        fs = op.kb * (zs - xa) + op.db * (vs - va)
-        return fs, u[lay.r_dof].copy(), zs.copy(), xa.copy()
+        return self._s.sleeper_fields(self._layout)
 
     def snapshot(self) -> Snapshot:
         """The current state (copies), see :class:`Snapshot`."""

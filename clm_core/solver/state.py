@@ -14,13 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-from clm_core.solver.operators import Operator
-from clm_core.solver.window import Placement
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from clm_core.arrays import Array, IntArray
+from clm_core.solver import _kernels as kern
+from clm_core.solver.operators import DofLayout, Operator
+from clm_core.solver.window import Placement, Window
 
 
 @dataclass(frozen=True)
@@ -50,6 +48,22 @@ class PendingStep:
     Gc: Array
     Wm: Array
     k: int
+
+
+@dataclass(frozen=True)
+class StepSetup:
+    """What does not change while a :class:`~clm_core.solver.TrackSimulator` runs, shared with its collaborators.
+
+    ``layout``: the DOF maps of its windows; ``window``: the window's placement
+    and shift rules; ``dt``: the time step [s]; ``z``, ``y``: the (n,) work
+    arrays of the compiled steps (``z`` is zero between calls).
+    """
+
+    layout: DofLayout
+    window: Window
+    dt: float
+    z: Array
+    y: Array
 
 
 @dataclass
@@ -100,5 +114,32 @@ class SimulatorState:
             self.pending,
         )
 
+    def kernel_state(self, z: Array, y: Array) -> kern.StepState:
+        """This state as the compiled steps take it, with the work arrays ``z``, ``y`` (n,) (updated in place)."""
+        return kern.StepState(self.u, self.v, z, y, self.prev_dofs, self.prev_vals, self.pk_force, self.pk_rail)
 
-__all__ = ["PendingStep", "SimulatorState"]
+    def sleeper_fields(self, lay: DofLayout) -> tuple[Array, Array, Array, Array]:
+        """Per sleeper: soil force [N], rail deflection above it, sleeper and contact-area displacement [m].
+
+        The soil force is ``k_b (z_s - x_a) + d_b (v_s - v_a)`` (the spring and
+        dashpot under the sleeper); with a rigid soil (no contact-area
+        DOF) ``x_a = v_a = 0``.
+        """
+        u, v = self.u, self.v
+        zs, vs = u[lay.s_dof], v[lay.s_dof]
+        if lay.a_dof[0] >= 0:
+            xa, va = u[lay.a_dof], v[lay.a_dof]
+        else:
+            xa, va = np.zeros_like(zs), np.zeros_like(vs)
+        op = self.op.kernel
+        fs = op.kb * (zs - xa) + op.db * (vs - va)
+        return fs, u[lay.r_dof].copy(), zs.copy(), xa.copy()
+
+    def update_peaks(self, lay: DofLayout) -> None:
+        """Raise the running maxima of soil force [N] and rail deflection [m] to the current fields."""
+        fs, rw = self.sleeper_fields(lay)[:2]
+        np.maximum(self.pk_force, fs, out=self.pk_force)
+        np.maximum(self.pk_rail, rw, out=self.pk_rail)
+
+
+__all__ = ["PendingStep", "SimulatorState", "StepSetup"]

@@ -39,10 +39,9 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError, ParameterError
 
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 #: Side of the clamped ghost bay: ahead ('forward'), behind ('backward'), none ('free', a fixed window).
 Orientation = Literal["forward", "backward", "free"]
 

@@ -36,9 +36,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.vehicle.contact import contact_work_size, vehicle_contact_step_into
-
-Array = NDArray[np.float64]
 
 #: Status of :func:`message_steps`: done.
 OK = 0

@@ -39,9 +39,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.errors import InputError, ParameterError
-
-Array = NDArray[np.float64]
 
 
 def hertz_constant(

@@ -42,6 +42,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.errors import InputError, ParameterError
 from clm_core.params import ModelParams
 from clm_core.peaks import MARGIN_BAYS, PeakWindow, masked_max, masked_min, peak_window
@@ -49,7 +50,6 @@ from clm_core.vehicle.contact import hertz_constant, static_compression
 from clm_core.vehicle.irregularity import Irregularity
 from clm_core.vehicle.multibody import Train, VehicleNewmark
 
-Array = NDArray[np.float64]
 Engine = Literal["stream", "stream-python", "fixed"]
 
 

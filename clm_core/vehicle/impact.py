@@ -29,12 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.errors import ParameterError
 from clm_core.frequency import dynamic_solve
 from clm_core.params import ModelParams
 from clm_core.track import assemble
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

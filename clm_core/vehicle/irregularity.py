@@ -48,14 +48,13 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array
 from clm_core.checks import finite as _fin
 from clm_core.checks import positive as _posv
 from clm_core.errors import InputError, ParameterError
 from clm_core.params import PER_SLEEPER_NAMES, ModelParams, SleeperOverride
-
-Array = NDArray[np.float64]
 
 #: FRA vertical-profile parameters: class -> (A_v [m^2 rad/m], Omega_c [rad/m]).
 FRA_CLASSES: Mapping[int, tuple[float, float]] = {

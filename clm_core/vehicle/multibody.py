@@ -37,15 +37,12 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from clm_core.arrays import Array, IntArray
 from clm_core.checks import finite as _finite
 from clm_core.checks import nonnegative as _nonnegative
 from clm_core.checks import positive as _positive
 from clm_core.errors import InputError, ParameterError
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Standard gravity [m/s^2].
 GRAVITY = 9.81

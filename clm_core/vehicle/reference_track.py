@@ -25,11 +25,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 
+from clm_core.arrays import Array
 from clm_core.errors import InputError, ParameterError
 from clm_core.params import ModelParams
 from clm_core.track import TrackSystem, assemble
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

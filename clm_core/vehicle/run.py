@@ -25,19 +25,8 @@ from typing import Any, Literal, cast
 from clm_core import settings
 from clm_core.errors import ParameterError
 from clm_core.params import ModelParams
+from clm_core.vehicle import irregularity as ir
 from clm_core.vehicle.coupled import CoupledResult, CoupledSimulation
-from clm_core.vehicle.irregularity import (
-    SPECTRA,
-    DippedJoint,
-    Irregularity,
-    JointStep,
-    Profile,
-    WheelFlat,
-    load_profile_csv,
-    local_stiffness_change,
-    parse_defect,
-    random_profile,
-)
 from clm_core.vehicle.multibody import Train, build_train
 from clm_core.vehicle.presets import load_vehicle
 
@@ -191,14 +180,14 @@ def build_vehicle_run(spec: VehicleRunSpec, params: ModelParams) -> VehicleRun:
     cars = vf.compose([s for s in spec.train if s.strip()]) if spec.train else vf.cars(spec.cars)
     train = build_train(cars)
 
-    rail_defects: list[DippedJoint | JointStep] = []
-    flats: list[WheelFlat] = []
+    rail_defects: list[ir.DippedJoint | ir.JointStep] = []
+    flats: list[ir.WheelFlat] = []
     for text in spec.defects:
-        d = parse_defect(text)
+        d = ir.parse_defect(text)
         if isinstance(d, dict):
             vals = {k: v for k, v in d.items() if k not in ("from", "to")}
-            params = local_stiffness_change(params, d["from"], d["to"], values=vals)
-        elif isinstance(d, WheelFlat):
+            params = ir.local_stiffness_change(params, d["from"], d["to"], values=vals)
+        elif isinstance(d, ir.WheelFlat):
             if d.wheel >= train.n_wheels:
                 raise ParameterError(f"defect {text!r}: wheel {d.wheel}; the train has {train.n_wheels} wheels")
             flats.append(d)
@@ -209,20 +198,20 @@ def build_vehicle_run(spec: VehicleRunSpec, params: ModelParams) -> VehicleRun:
     x_lo = spec.start - float(train.wheel_offset[-1]) - 1.0
     x_hi = spec.start + spec.speed * spec.duration + 1.0
     kind = spec.irregularity.strip()
-    profile: Profile | None
-    random = kind.lower() in SPECTRA
+    profile: ir.Profile | None
+    random = kind.lower() in ir.SPECTRA
     if kind.lower() == "none":
         profile = None
     elif random:
-        profile = random_profile(kind.lower(), x_lo, x_hi - x_lo, seed=spec.seed, band=spec.band)
+        profile = ir.random_profile(kind.lower(), x_lo, x_hi - x_lo, seed=spec.seed, band=spec.band)
     else:
         p = Path(kind)
         if not p.exists() and p.suffix.lower() != ".csv":
             raise ParameterError(
-                f"irregularity = {kind!r}: not a spectrum ({', '.join(SPECTRA)}), 'none', or an existing CSV file"
+                f"irregularity = {kind!r}: not a spectrum ({', '.join(ir.SPECTRA)}), 'none', or an existing CSV file"
             )
-        profile = load_profile_csv(p)
-    irr = Irregularity(profile=profile, defects=tuple(rail_defects), flats=tuple(flats),
+        profile = ir.load_profile_csv(p)
+    irr = ir.Irregularity(profile=profile, defects=tuple(rail_defects), flats=tuple(flats),
                        lead_in=spec.lead_in if profile is not None else 0.0)
 
     every = max(1, int(round(spec.output_dt / spec.dt)))

@@ -28,15 +28,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array
 from clm_core.errors import InputError, ParameterError
 from clm_core.vehicle._streaming_kernel import OUTSIDE_PROFILE, message_steps, work_size
 from clm_core.vehicle.contact import static_compression
 from clm_core.vehicle.coupled import CoupledSimulation
 from clm_core.vehicle.multibody import VehicleNewmark
-
-Array = NDArray[np.float64]
 
 
 class StreamingVehicle:

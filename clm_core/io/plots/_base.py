@@ -23,7 +23,7 @@ from matplotlib.legend import Legend
 from matplotlib.transforms import Bbox
 from numpy.typing import NDArray
 
-Array = NDArray[np.float64]
+from clm_core.arrays import Array
 
 #: Called with every figure and its file just before the file is written
 #: (after the layout): the test suite checks every figure it renders this way.

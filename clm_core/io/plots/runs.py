@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from matplotlib.figure import Figure
 
+from clm_core.arrays import Array
 from clm_core.io.plots._base import (
-    Array,
     figure_legend,
     legend,
     new_figure,
