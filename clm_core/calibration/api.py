@@ -394,31 +394,8 @@ def calibrate(
             raise CalibrationError(f"fitted soil refused: {exc}") from None
         tm = _impact_time_model(main, rec)
         report("done", 1.0)
-        return CalibrationResult(
-            method=method,
-            bag=str(bag_path),
-            storage=contents.storage,
-            channel_map=cmap,
-            options=opts,
-            model=opts.model,
-            band=main.band,
-            norm=main.norm,
-            parameters=main.parameters,
-            stats=main.stats,
-            params=params,
-            misfit=main.misfit,
-            first_estimate=main.first_estimate,
-            first_estimate_method=main.first_estimate_method,
-            comparisons=tuple(comps),
-            main_fit=main,
-            data=data,
-            recording=rec,
-            loads=None,
-            time_model=tm,
-            warnings=tuple(warnings),
-            notes=tuple(notes),
-            elapsed_s=time.perf_counter() - t_start,
-        )
+        return _result(method, bag_path, contents.storage, cmap, opts, main, opts.model, params, tuple(comps), data,
+                       rec, None, tm, warnings, notes, t_start)
     # receptance
     tfit = fit_receptance(
         data,
@@ -446,22 +423,36 @@ def _track_result(
     t_start: float,
 ) -> CalibrationResult:
     """The result of a track-parameter fit (receptance or pass-by)."""
+    model = "track+soil" if opts.soil == "joint" else "track"
+    return _result(method, bag_path, storage, cmap, opts, fit, model, fit.params, (), data, rec, loads, time_model,
+                   warnings, notes, t_start)
+
+
+def _result(
+    method: str, bag_path: str | Path, storage: str, cmap: ChannelMap, opts: CalibrationOptions,
+    fit: SoilFit | TrackFit, model: str, params: ModelParams, comparisons: tuple[SoilFit, ...], data: Any,
+    rec: Recording, loads: Any, time_model: Array | None, warnings: list[str], notes: list[str], t_start: float,
+) -> CalibrationResult:
+    """The result of a fit: the main ``fit`` with its full parameter set ``params`` and the run's context.
+
+    ``t_start`` is the :func:`time.perf_counter` value [s] at the start of the run.
+    """
     return CalibrationResult(
         method=method,
         bag=str(bag_path),
         storage=storage,
         channel_map=cmap,
         options=opts,
-        model="track+soil" if opts.soil == "joint" else "track",
+        model=model,
         band=fit.band,
         norm=fit.norm,
         parameters=fit.parameters,
         stats=fit.stats,
-        params=fit.params,
+        params=params,
         misfit=fit.misfit,
         first_estimate=fit.first_estimate,
         first_estimate_method=fit.first_estimate_method,
-        comparisons=(),
+        comparisons=comparisons,
         main_fit=fit,
         data=data,
         recording=rec,

@@ -66,7 +66,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import FitStats, ParameterEstimate, Sandwich, fit_bounded
+from clm_core.calibration.lsq import FitStats, ParameterEstimate, Sandwich, fit_constrained
 from clm_core.calibration.residuals import (
     WhitenessCheck,
     channel_noise_power,
@@ -78,7 +78,7 @@ from clm_core.calibration.residuals import (
     stack_residual,
 )
 from clm_core.calibration.spectra import TransferData
-from clm_core.calibration.sums import fit_sums
+from clm_core.calibration.sums import area_columns, fit_sums
 from clm_core.errors import ParameterError
 from clm_core.params import SoilParams
 from clm_core.soil.chain import CHAIN_PARAMS, chain_response
@@ -185,20 +185,11 @@ def measured_sums(data: TransferData) -> tuple[CArray, CArray, int, str] | None:
     (total, alternating, n_areas, description) or None when area 0 is
     missing or no neighbour is measured.
     """
-    idx = {c.index: k for k, c in enumerate(data.channels) if c.location == "area"}
-    if 0 not in idx:
+    cols = area_columns(data)
+    if cols is None:
         return None
-
-    def reach(sign: int) -> int:
-        j = 0
-        while sign * (j + 1) in idx:
-            j += 1
-        return j
-
-    n_pos, n_neg = reach(1), reach(-1)
+    idx, n_pos, n_neg = cols
     n = max(n_pos, n_neg)
-    if n == 0:
-        return None
     H = data.H
     tot = H[:, idx[0]].copy()
     alt = H[:, idx[0]].copy()
@@ -536,24 +527,11 @@ def _fit_chain(
         assert J is not None
         return r, J
 
-    n = len(free)
-    A = np.eye(n)
-    lo = np.zeros(n)
-    hi = np.full(n, np.inf)
-    for i, k in enumerate(free):
-        if k in ("mf", "kf"):
-            lo[i] = 1e-6 * abs(p0[i])
-    if model == "clm":
-        # z = (mf, kf, df, kc, e = df + 4 dc) -> dc = (e - df) / 4
-        A[4, :] = [0, 0, -0.25, 0, 0.25]
-    p, est, stats, w2 = fit_bounded(
+    p, est, stats, w2 = fit_constrained(
         residual,
         free,
-        [SOIL_UNITS[k] for k in free],
+        SOIL_UNITS,
         p0,
-        A,
-        lo,
-        hi,
         corr_factor=data.corr_factor if norm_used == "weighted" else 1.0,
         max_nfev=max_nfev,
         ident_rel=ident_rel,

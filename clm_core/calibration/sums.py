@@ -108,7 +108,21 @@ class SumsFit:
     description: str
 
 
-def _area_columns(data: TransferData) -> tuple[dict[int, int], int, int] | None:
+def area_columns(data: TransferData) -> tuple[dict[int, int], int, int] | None:
+    """Columns of the area channels and how far they reach without holes from the loaded area.
+
+    Parameters
+    ----------
+    data : TransferData
+        Receptances; area channels have ``location == 'area'`` and the area index.
+
+    Returns
+    -------
+    (columns, n_pos, n_neg) or None
+        Column of each area index, and the last areas n_pos >= 0 and -n_neg
+        reached from area 0 without a hole; None when area 0 is missing or no
+        neighbour is measured.
+    """
     idx = {c.index: k for k, c in enumerate(data.channels) if c.location == "area"}
     if 0 not in idx:
         return None
@@ -141,7 +155,7 @@ def sum_coefficients(data: TransferData, snr_min: float = 1.0) -> tuple[dict[int
         The total sum is sum_columns c_j H[:, column]; the alternating sum
         uses (-1)^|j| c_j. None when area 0 or all its neighbours are missing.
     """
-    cols = _area_columns(data)
+    cols = area_columns(data)
     if cols is None:
         return None
     idx, n_pos, n_neg = cols
