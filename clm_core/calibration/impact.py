@@ -185,23 +185,20 @@ def measured_sums(data: TransferData) -> tuple[CArray, CArray, int, str] | None:
     (total, alternating, n_areas, description) or None when area 0 is
     missing or no neighbour is measured.
     """
-    cols = area_columns(data)
-    if cols is None:
+    areas = area_columns(data)
+    if areas is None:
         return None
-    idx, n_pos, n_neg = cols
-    n = max(n_pos, n_neg)
-    H = data.H
+    H, idx, n = data.H, areas.column, areas.reach
     tot = H[:, idx[0]].copy()
     alt = H[:, idx[0]].copy()
     for j in range(1, n + 1):
-        a = H[:, idx[j]] if j <= n_pos else None
-        b = H[:, idx[-j]] if j <= n_neg else None
+        a = H[:, idx[j]] if j <= areas.n_pos else None
+        b = H[:, idx[-j]] if j <= areas.n_neg else None
         pair = (a + b) if (a is not None and b is not None) else 2.0 * (a if a is not None else b)  # type: ignore[operator]
         tot += pair
         alt += (-1) ** j * pair
-    how = (
-        f"areas -{n_neg}..{n_pos}" + (" (completed by symmetry, Eq. 19-20)" if n_pos != n_neg else "")
-    )
+    symmetric = areas.n_pos == areas.n_neg
+    how = f"areas -{areas.n_neg}..{areas.n_pos}" + ("" if symmetric else " (completed by symmetry, Eq. 19-20)")
     return 1.0 / tot, 1.0 / alt, 2 * n + 1, how
 
 

@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,20 +109,34 @@ class SumsFit:
     description: str
 
 
-def area_columns(data: TransferData) -> tuple[dict[int, int], int, int] | None:
-    """Columns of the area channels and how far they reach without holes from the loaded area.
+class AreaColumns(NamedTuple):
+    """The area channels of a record and how far they reach without holes from the loaded area.
+
+    Attributes
+    ----------
+    column : dict int -> int
+        Column of ``TransferData.H`` of each measured area index.
+    n_pos, n_neg : int
+        The last areas n_pos >= 0 and -n_neg reached from area 0 without a hole.
+    """
+
+    column: dict[int, int]
+    n_pos: int
+    n_neg: int
+
+    @property
+    def reach(self) -> int:
+        """max(n_pos, n_neg): the farther side."""
+        return max(self.n_pos, self.n_neg)
+
+
+def area_columns(data: TransferData) -> AreaColumns | None:
+    """The area columns of ``data`` (:class:`AreaColumns`); None when area 0 or all its neighbours are missing.
 
     Parameters
     ----------
     data : TransferData
         Receptances; area channels have ``location == 'area'`` and the area index.
-
-    Returns
-    -------
-    (columns, n_pos, n_neg) or None
-        Column of each area index, and the last areas n_pos >= 0 and -n_neg
-        reached from area 0 without a hole; None when area 0 is missing or no
-        neighbour is measured.
     """
     idx = {c.index: k for k, c in enumerate(data.channels) if c.location == "area"}
     if 0 not in idx:
@@ -133,10 +148,8 @@ def area_columns(data: TransferData) -> tuple[dict[int, int], int, int] | None:
             j += 1
         return j
 
-    n_pos, n_neg = reach(1), reach(-1)
-    if max(n_pos, n_neg) == 0:
-        return None
-    return idx, n_pos, n_neg
+    cols = AreaColumns(idx, reach(1), reach(-1))
+    return cols if cols.reach > 0 else None
 
 
 def sum_coefficients(data: TransferData, snr_min: float = 1.0) -> tuple[dict[int, float], int, int, bool] | None:
@@ -159,7 +172,7 @@ def sum_coefficients(data: TransferData, snr_min: float = 1.0) -> tuple[dict[int
     if cols is None:
         return None
     idx, n_pos, n_neg = cols
-    n_max = max(n_pos, n_neg)
+    n_max = cols.reach
     std = data.std
 
     def snr(j: int) -> float:
