@@ -14,18 +14,18 @@ impact test bag in the calibration-bag format, with ``channels.yaml`` and
 
 from __future__ import annotations
 
-import argparse
-import shutil
-import time
+from functools import partial
 from pathlib import Path
 
 from clm_core.synthetic.reference import write_reference_impact_bag
+from clm_core.synthetic.shipped import regenerate
 
 HERE = Path(__file__).resolve().parent
 
-#: What is shipped: name -> keyword arguments of write_reference_impact_bag.
+#: What is shipped: name -> write_reference_impact_bag with its keyword arguments.
 BAGS = {
-    "impact_mevergnies_rigorous": dict(
+    "impact_mevergnies_rigorous": partial(
+        write_reference_impact_bag,
         profile="mevergnies",
         n_areas=41,
         spacing=0.6,
@@ -47,24 +47,7 @@ BAGS = {
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--storage", default="mcap", choices=("mcap", "sqlite3"))
-    ap.add_argument("--out", default=str(HERE), help="directory of the bags (default: this one)")
-    args = ap.parse_args()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    for name, kw in BAGS.items():
-        path = out / name
-        keep = (path / "README.md").read_text(encoding="utf-8") if (path / "README.md").is_file() else None
-        if path.exists():
-            shutil.rmtree(path)
-        t = time.perf_counter()
-        bag = write_reference_impact_bag(path, storage=args.storage, **kw)  # type: ignore[arg-type]
-        if keep is not None:  # the hand-written README of the shipped bag survives regeneration
-            (path / "README.md").write_text(keep, encoding="utf-8")
-        size = sum(f.stat().st_size for f in bag.path.iterdir())
-        print(f"{bag.path}: {size / 1e6:.2f} MB ({time.perf_counter() - t:.1f} s)")
-    return 0
+    return regenerate(__doc__ or "", HERE, BAGS)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,10 @@ Progress = Callable[[str, float], None]
 class CalibrationResult:
     """Outcome of :func:`calibrate` (plain, immutable data).
 
+    ``band``, ``norm``, ``parameters``, ``stats``, ``misfit``,
+    ``first_estimate`` and ``first_estimate_method`` are those of
+    :attr:`main_fit` (properties).
+
     Attributes
     ----------
     method : {'impact', 'receptance', 'passby'}
@@ -59,22 +63,8 @@ class CalibrationResult:
         Options used.
     model : str
         Fitted model: the soil model (impact) or ``track`` / ``track+soil``.
-    band : tuple of float
-        Fit band [Hz] (pass-by: 0 to fs/2, time domain).
-    norm : str
-        Error norm used.
-    parameters : tuple of ParameterEstimate
-        Fitted parameters, values and 95 % intervals.
-    stats : FitStats
-        Residual statistics.
     params : ModelParams
         Full parameter set: base rail/track/soil with the fitted values.
-    misfit : float
-        Relative misfit in the fit's norm, ||W (model - data)|| / ||W data|| [-].
-    first_estimate : mapping
-        Starting values.
-    first_estimate_method : str
-        How they were found.
     comparisons : tuple of SoilFit
         Impact: fits of the other soil models (comparison).
     main_fit : SoilFit or TrackFit
@@ -103,14 +93,7 @@ class CalibrationResult:
     channel_map: ChannelMap
     options: CalibrationOptions
     model: str
-    band: tuple[float, float]
-    norm: str
-    parameters: tuple[ParameterEstimate, ...]
-    stats: FitStats
     params: ModelParams
-    misfit: float
-    first_estimate: Mapping[str, float]
-    first_estimate_method: str
     comparisons: tuple[SoilFit, ...]
     main_fit: SoilFit | TrackFit
     data: TransferData | None
@@ -120,6 +103,41 @@ class CalibrationResult:
     warnings: tuple[str, ...]
     notes: tuple[str, ...]
     elapsed_s: float
+
+    @property
+    def band(self) -> tuple[float, float]:
+        """Fit band [Hz] of :attr:`main_fit` (pass-by: 0 to fs/2, time domain)."""
+        return self.main_fit.band
+
+    @property
+    def norm(self) -> str:
+        """Error norm used by :attr:`main_fit`."""
+        return self.main_fit.norm
+
+    @property
+    def parameters(self) -> tuple[ParameterEstimate, ...]:
+        """Fitted parameters of :attr:`main_fit`, values [SI] and 95 % intervals."""
+        return self.main_fit.parameters
+
+    @property
+    def stats(self) -> FitStats:
+        """Residual statistics of :attr:`main_fit`."""
+        return self.main_fit.stats
+
+    @property
+    def misfit(self) -> float:
+        """Relative misfit of :attr:`main_fit` in its norm, ||W (model - data)|| / ||W data|| [-]."""
+        return self.main_fit.misfit
+
+    @property
+    def first_estimate(self) -> Mapping[str, float]:
+        """Starting values of :attr:`main_fit` [SI]."""
+        return self.main_fit.first_estimate
+
+    @property
+    def first_estimate_method(self) -> str:
+        """How the starting values were found."""
+        return self.main_fit.first_estimate_method
 
     @property
     def soil(self) -> SoilParams:
@@ -394,31 +412,8 @@ def calibrate(
             raise CalibrationError(f"fitted soil refused: {exc}") from None
         tm = _impact_time_model(main, rec)
         report("done", 1.0)
-        return CalibrationResult(
-            method=method,
-            bag=str(bag_path),
-            storage=contents.storage,
-            channel_map=cmap,
-            options=opts,
-            model=opts.model,
-            band=main.band,
-            norm=main.norm,
-            parameters=main.parameters,
-            stats=main.stats,
-            params=params,
-            misfit=main.misfit,
-            first_estimate=main.first_estimate,
-            first_estimate_method=main.first_estimate_method,
-            comparisons=tuple(comps),
-            main_fit=main,
-            data=data,
-            recording=rec,
-            loads=None,
-            time_model=tm,
-            warnings=tuple(warnings),
-            notes=tuple(notes),
-            elapsed_s=time.perf_counter() - t_start,
-        )
+        return _result(method, bag_path, contents.storage, cmap, opts, main, opts.model, params, tuple(comps), data,
+                       rec, None, tm, warnings, notes, t_start)
     # receptance
     tfit = fit_receptance(
         data,
@@ -446,22 +441,29 @@ def _track_result(
     t_start: float,
 ) -> CalibrationResult:
     """The result of a track-parameter fit (receptance or pass-by)."""
+    model = "track+soil" if opts.soil == "joint" else "track"
+    return _result(method, bag_path, storage, cmap, opts, fit, model, fit.params, (), data, rec, loads, time_model,
+                   warnings, notes, t_start)
+
+
+def _result(
+    method: str, bag_path: str | Path, storage: str, cmap: ChannelMap, opts: CalibrationOptions,
+    fit: SoilFit | TrackFit, model: str, params: ModelParams, comparisons: tuple[SoilFit, ...], data: Any,
+    rec: Recording, loads: Any, time_model: Array | None, warnings: list[str], notes: list[str], t_start: float,
+) -> CalibrationResult:
+    """The result of a fit: the main ``fit`` with its full parameter set ``params`` and the run's context.
+
+    ``t_start`` is the :func:`time.perf_counter` value [s] at the start of the run.
+    """
     return CalibrationResult(
         method=method,
         bag=str(bag_path),
         storage=storage,
         channel_map=cmap,
         options=opts,
-        model="track+soil" if opts.soil == "joint" else "track",
-        band=fit.band,
-        norm=fit.norm,
-        parameters=fit.parameters,
-        stats=fit.stats,
-        params=fit.params,
-        misfit=fit.misfit,
-        first_estimate=fit.first_estimate,
-        first_estimate_method=fit.first_estimate_method,
-        comparisons=(),
+        model=model,
+        params=params,
+        comparisons=comparisons,
         main_fit=fit,
         data=data,
         recording=rec,

@@ -26,15 +26,15 @@ and of every response together leaves the transfer functions unchanged.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-import yaml
-
 from clm_core.calibration.errors import CalibrationError
+from clm_core.checks import finite
+from clm_core.errors import ParameterError, PresetError
+from clm_core.params import read_yaml_mapping
 
 Quantity = Literal["force", "displacement", "velocity", "acceleration"]
 Location = Literal["area", "rail", "sleeper", "soil"]
@@ -173,14 +173,29 @@ class ChannelMap:
         if self.test:
             out["test"] = self.test
         if self.force is not None:
-            out["force"] = _spec_dict(self.force, with_location=False)
+            out["force"] = spec_dict(self.force, with_location=False)
         if self.loads_topic:
             out["loads"] = {"topic": self.loads_topic}
-        out["channels"] = [_spec_dict(c, with_location=True) for c in self.channels]
+        out["channels"] = [spec_dict(c, with_location=True) for c in self.channels]
         return out
 
 
-def _spec_dict(c: ChannelSpec, with_location: bool) -> dict[str, Any]:
+def spec_dict(c: ChannelSpec, with_location: bool) -> dict[str, Any]:
+    """One channel-map entry (the file format, values in the recorded unit) for a channel.
+
+    Parameters
+    ----------
+    c : ChannelSpec
+        The channel.
+    with_location : bool
+        Write ``area`` or ``sleeper``/``location`` and ``quantity`` (response
+        channels; not the force).
+
+    Returns
+    -------
+    dict
+        Keys of the channel-map format (module docstring); defaults left out.
+    """
     d: dict[str, Any] = {"topic": c.topic}
     if c.name != c.topic:
         d["name"] = c.name
@@ -208,13 +223,11 @@ def _spec_dict(c: ChannelSpec, with_location: bool) -> dict[str, Any]:
 
 
 def _finite(where: str, key: str, value: Any) -> float:
+    """``value`` as a finite float (:func:`clm_core.checks.finite`), refused as a channel-map error."""
     try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise CalibrationError(f"{where}: {key} = {value!r}: must be a number") from None
-    if not math.isfinite(v):
-        raise CalibrationError(f"{where}: {key} = {v}: must be finite")
-    return v
+        return finite(f"{where}: {key}", value)
+    except ParameterError as exc:
+        raise CalibrationError(str(exc)) from None
 
 
 def _spec(entry: Any, where: str, kind: Literal["force", "channel"]) -> ChannelSpec:
@@ -381,12 +394,11 @@ def load_channel_map(path: str | Path) -> ChannelMap:
         File missing, not YAML, or an invalid map (see :func:`parse_channel_map`).
     """
     p = Path(path)
-    if not p.is_file():
-        raise CalibrationError(f"channel map {str(p)!r} not found")
     try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise CalibrationError(f"channel map {p}: not valid YAML ({exc})") from None
+        data = read_yaml_mapping(p, "channel map")
+    except PresetError as exc:
+        msg = str(exc)
+        raise CalibrationError(msg if msg.startswith("channel map") else f"channel map {msg}") from None
     return parse_channel_map(data, str(p))
 
 

@@ -66,7 +66,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import FitStats, ParameterEstimate, Sandwich, fit_bounded
+from clm_core.calibration.lsq import FitStats, ParameterEstimate, Sandwich, fit_constrained
 from clm_core.calibration.residuals import (
     WhitenessCheck,
     channel_noise_power,
@@ -78,7 +78,7 @@ from clm_core.calibration.residuals import (
     stack_residual,
 )
 from clm_core.calibration.spectra import TransferData
-from clm_core.calibration.sums import fit_sums
+from clm_core.calibration.sums import area_columns, fit_sums
 from clm_core.errors import ParameterError
 from clm_core.params import SoilParams
 from clm_core.soil.chain import CHAIN_PARAMS, chain_response
@@ -185,32 +185,20 @@ def measured_sums(data: TransferData) -> tuple[CArray, CArray, int, str] | None:
     (total, alternating, n_areas, description) or None when area 0 is
     missing or no neighbour is measured.
     """
-    idx = {c.index: k for k, c in enumerate(data.channels) if c.location == "area"}
-    if 0 not in idx:
+    areas = area_columns(data)
+    if areas is None:
         return None
-
-    def reach(sign: int) -> int:
-        j = 0
-        while sign * (j + 1) in idx:
-            j += 1
-        return j
-
-    n_pos, n_neg = reach(1), reach(-1)
-    n = max(n_pos, n_neg)
-    if n == 0:
-        return None
-    H = data.H
+    H, idx, n = data.H, areas.column, areas.reach
     tot = H[:, idx[0]].copy()
     alt = H[:, idx[0]].copy()
     for j in range(1, n + 1):
-        a = H[:, idx[j]] if j <= n_pos else None
-        b = H[:, idx[-j]] if j <= n_neg else None
+        a = H[:, idx[j]] if j <= areas.n_pos else None
+        b = H[:, idx[-j]] if j <= areas.n_neg else None
         pair = (a + b) if (a is not None and b is not None) else 2.0 * (a if a is not None else b)  # type: ignore[operator]
         tot += pair
         alt += (-1) ** j * pair
-    how = (
-        f"areas -{n_neg}..{n_pos}" + (" (completed by symmetry, Eq. 19-20)" if n_pos != n_neg else "")
-    )
+    symmetric = areas.n_pos == areas.n_neg
+    how = f"areas -{areas.n_neg}..{areas.n_pos}" + ("" if symmetric else " (completed by symmetry, Eq. 19-20)")
     return 1.0 / tot, 1.0 / alt, 2 * n + 1, how
 
 
@@ -536,24 +524,11 @@ def _fit_chain(
         assert J is not None
         return r, J
 
-    n = len(free)
-    A = np.eye(n)
-    lo = np.zeros(n)
-    hi = np.full(n, np.inf)
-    for i, k in enumerate(free):
-        if k in ("mf", "kf"):
-            lo[i] = 1e-6 * abs(p0[i])
-    if model == "clm":
-        # z = (mf, kf, df, kc, e = df + 4 dc) -> dc = (e - df) / 4
-        A[4, :] = [0, 0, -0.25, 0, 0.25]
-    p, est, stats, w2 = fit_bounded(
+    p, est, stats, w2 = fit_constrained(
         residual,
         free,
-        [SOIL_UNITS[k] for k in free],
+        SOIL_UNITS,
         p0,
-        A,
-        lo,
-        hi,
         corr_factor=data.corr_factor if norm_used == "weighted" else 1.0,
         max_nfev=max_nfev,
         ident_rel=ident_rel,

@@ -53,8 +53,9 @@ reported as not identifiable from the data.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -494,3 +495,70 @@ def _fd_jacobian(residual: Residual, p: Array, r: Array, step: float) -> Array:
             except ParameterError:
                 J[:, i] = (r - residual(pm)[0]) / h
     return J
+
+
+#: Parameters that stay strictly positive (stiffnesses, masses): z >= 1e-6 |p0|.
+_POSITIVE = frozenset({"kp", "ms", "kb", "mf", "kf"})
+
+
+def transform(names: Sequence[str], p0: Array) -> tuple[Array, Array, Array]:
+    """Map p = A z and bounds of z for the admissibility constraints.
+
+    Stiffnesses and masses (``kp ms kb mf kf``) stay > 0 (z >= 1e-6 |p0|),
+    dampings >= 0, and with both ``df`` and ``dc`` free, z_dc = d_f + 4 d_c >= 0
+    (damping matrix of the CLM chain positive semi-definite, Sec. 4.2).
+
+    Parameters
+    ----------
+    names : sequence of str
+        Free parameter names (n_p).
+    p0 : (n_p,) array
+        Starting values (SI units).
+
+    Returns
+    -------
+    A : (n_p, n_p) array
+        Invertible map z -> p.
+    z_lower, z_upper : (n_p,) arrays
+        Bounds of z.
+    """
+    n = len(names)
+    A = np.eye(n)
+    lo = np.zeros(n)
+    hi = np.full(n, np.inf)
+    for i, k in enumerate(names):
+        if k in _POSITIVE:
+            lo[i] = 1e-6 * abs(p0[i])
+    if "dc" in names and "df" in names:
+        i_dc, i_df = names.index("dc"), names.index("df")
+        A[i_dc, :] = 0.0
+        A[i_dc, i_df] = -0.25
+        A[i_dc, i_dc] = 0.25  # z_dc = d_f + 4 d_c >= 0
+    return A, lo, hi
+
+
+def fit_constrained(
+    residual: Residual,
+    names: Sequence[str],
+    units: Mapping[str, str],
+    p0: Array,
+    **options: Any,
+) -> tuple[Array, tuple[ParameterEstimate, ...], FitStats, list[str]]:
+    """:func:`fit_bounded` under the admissibility constraints of :func:`transform`.
+
+    Parameters
+    ----------
+    residual, names, p0
+        As in :func:`fit_bounded`.
+    units : mapping name -> str
+        SI unit of every parameter name (at least those in ``names``).
+    **options
+        Keywords of :func:`fit_bounded` (``corr_factor``, ``max_nfev``,
+        ``ident_rel``, ``cond_max``, ``jacobian``, ``sandwich``, ...).
+
+    Returns
+    -------
+    As :func:`fit_bounded`.
+    """
+    A, lo, hi = transform(names, p0)
+    return fit_bounded(residual, names, [units[k] for k in names], p0, A, lo, hi, **options)

@@ -174,20 +174,14 @@ class CalibrationOptions:
             return cls()
         if not isinstance(data, Mapping):
             raise CalibrationError(f"options: expected a mapping, got {type(data).__name__}")
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise CalibrationError(f"options: unknown key(s) {unknown}; allowed: {sorted(names)}")
+        _refuse_unknown("options", data, cls)
         kw: dict[str, Any] = dict(data)
         for key, sub in (("window", WindowSpec), ("sampling", SamplingRules)):
             if key in kw and not isinstance(kw[key], (WindowSpec, SamplingRules)):
                 raw = kw[key] or {}
                 if not isinstance(raw, Mapping):
                     raise CalibrationError(f"options: {key} must be a mapping")
-                allowed = {f.name for f in fields(sub)}
-                bad = sorted(set(raw) - allowed)
-                if bad:
-                    raise CalibrationError(f"options: {key}: unknown key(s) {bad}; allowed: {sorted(allowed)}")
+                _refuse_unknown(f"options: {key}", raw, sub)
                 try:
                     kw[key] = sub(**raw)
                 except TypeError as exc:
@@ -236,3 +230,11 @@ class CalibrationOptions:
         d["fit"] = list(self.fit) if self.fit is not None else None
         d["initial"] = dict(self.initial) if self.initial is not None else None
         return d
+
+
+def _refuse_unknown(where: str, data: Mapping[str, Any], cls: type) -> None:
+    """Refuse keys of ``data`` that are not fields of the dataclass ``cls`` (the message lists the allowed ones)."""
+    allowed = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise CalibrationError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")

@@ -31,8 +31,8 @@ from numpy.typing import NDArray
 from clm_core.calibration.bagio import WheelLoadRecord
 from clm_core.calibration.channels import ChannelSpec
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import fit_bounded
-from clm_core.calibration.receptance import UNITS, TrackFit, free_parameters, transform
+from clm_core.calibration.lsq import fit_constrained
+from clm_core.calibration.receptance import UNITS, TrackFit, free_parameters, starting_set
 from clm_core.calibration.signals import Recording
 from clm_core.errors import ParameterError
 from clm_core.params import ModelParams
@@ -187,12 +187,7 @@ def fit_passby(
     """
     names = free_parameters(base, fit, soil)
     warns: list[str] = []
-    start = base
-    if initial:
-        try:
-            start = base.override(**{k: float(v) for k, v in initial.items()})
-        except ParameterError as exc:
-            raise CalibrationError(f"initial values: {exc}") from None
+    start = starting_set(base, initial)
     if dt is None:
         q = max(1, math.ceil((1.0 / rec.fs) / 5e-4))
         dt = 1.0 / (rec.fs * q)
@@ -238,16 +233,12 @@ def fit_passby(
         e = (Ys[m] - Y[m]) / sig[None, :]
         return np.nan_to_num(e.T.ravel(), nan=0.0), None
 
-    A, lo, hi = transform(names, p0)
     try:
-        p, est, stats, w2 = fit_bounded(
+        p, est, stats, w2 = fit_constrained(
             residual,
             names,
-            [UNITS[k] for k in names],
+            UNITS,
             p0,
-            A,
-            lo,
-            hi,
             max_nfev=max_nfev,
             ident_rel=ident_rel,
             cond_max=cond_max,

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import FitStats, ParameterEstimate, fit_bounded
+from clm_core.calibration.lsq import FitStats, ParameterEstimate, fit_constrained
 from clm_core.calibration.models import track_response
 from clm_core.calibration.residuals import make_sandwich, misfit, norm_weights, stack_residual
 from clm_core.calibration.spectra import TransferData
@@ -50,7 +50,6 @@ UNITS: Mapping[str, str] = {
     "dc": "N s/m",
 }
 DEFAULT_FIT: tuple[str, ...] = ("kp", "dp", "kb", "db")
-_POSITIVE = {"kp", "ms", "kb", "mf", "kf"}
 
 
 @dataclass(frozen=True)
@@ -129,21 +128,27 @@ def free_parameters(base: ModelParams, fit: Sequence[str], soil: str) -> tuple[s
     return tuple(track + [n for n in ("mf", "kf", "df", "kc", "dc") if n in soil_names])
 
 
-def transform(names: Sequence[str], p0: Array) -> tuple[Array, Array, Array]:
-    """Map p = A z and bounds of z for the constraints (module docstring)."""
-    n = len(names)
-    A = np.eye(n)
-    lo = np.zeros(n)
-    hi = np.full(n, np.inf)
-    for i, k in enumerate(names):
-        if k in _POSITIVE:
-            lo[i] = 1e-6 * abs(p0[i])
-    if "dc" in names and "df" in names:
-        i_dc, i_df = names.index("dc"), names.index("df")
-        A[i_dc, :] = 0.0
-        A[i_dc, i_df] = -0.25
-        A[i_dc, i_dc] = 0.25  # z_dc = d_f + 4 d_c >= 0
-    return A, lo, hi
+def starting_set(base: ModelParams, initial: Mapping[str, float] | None) -> ModelParams:
+    """The fit's starting parameter set: ``base`` with the ``initial`` values (SI units) put in.
+
+    Parameters
+    ----------
+    base : ModelParams
+        Fixed values and default starting point.
+    initial : mapping name -> value, optional
+        Starting values overriding ``base`` (units of :data:`UNITS`).
+
+    Raises
+    ------
+    CalibrationError
+        An unknown name or an inadmissible value (the parameter rule is named).
+    """
+    if not initial:
+        return base
+    try:
+        return base.override(**{k: float(v) for k, v in initial.items()})
+    except ParameterError as exc:
+        raise CalibrationError(f"initial values: {exc}") from None
 
 
 def out_dofs(system: TrackSystem, channels: Sequence[object], centre: int) -> list[int]:
@@ -225,12 +230,7 @@ def fit_receptance(
         raise CalibrationError(f"n_sleepers = {n_sleepers}: must be odd and >= 3 (hit sleeper at the centre)")
     names = free_parameters(base, fit, soil)
     warns: list[str] = []
-    start = base
-    if initial:
-        try:
-            start = base.override(**{k: float(v) for k, v in initial.items()})
-        except ParameterError as exc:
-            raise CalibrationError(f"initial values: {exc}") from None
+    start = starting_set(base, initial)
     p0 = np.array([_get(start, k) for k in names])
     method = "the base parameter set" + (" with the given initial values" if initial else "") + (
         f" ({base.name})" if base.name else ""
@@ -259,15 +259,11 @@ def fit_receptance(
         return stack_residual(e)
 
     D = (1.0 / Hd) if W is None else W.astype(complex)
-    A, lo, hi = transform(names, p0)
-    p, est, stats, w2 = fit_bounded(
+    p, est, stats, w2 = fit_constrained(
         residual,
         names,
-        [UNITS[k] for k in names],
+        UNITS,
         p0,
-        A,
-        lo,
-        hi,
         corr_factor=data.corr_factor if norm_used == "weighted" else 1.0,
         max_nfev=max_nfev,
         ident_rel=ident_rel,

@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,7 +109,35 @@ class SumsFit:
     description: str
 
 
-def _area_columns(data: TransferData) -> tuple[dict[int, int], int, int] | None:
+class AreaColumns(NamedTuple):
+    """The area channels of a record and how far they reach without holes from the loaded area.
+
+    Attributes
+    ----------
+    column : dict int -> int
+        Column of ``TransferData.H`` of each measured area index.
+    n_pos, n_neg : int
+        The last areas n_pos >= 0 and -n_neg reached from area 0 without a hole.
+    """
+
+    column: dict[int, int]
+    n_pos: int
+    n_neg: int
+
+    @property
+    def reach(self) -> int:
+        """max(n_pos, n_neg): the farther side."""
+        return max(self.n_pos, self.n_neg)
+
+
+def area_columns(data: TransferData) -> AreaColumns | None:
+    """The area columns of ``data`` (:class:`AreaColumns`); None when area 0 or all its neighbours are missing.
+
+    Parameters
+    ----------
+    data : TransferData
+        Receptances; area channels have ``location == 'area'`` and the area index.
+    """
     idx = {c.index: k for k, c in enumerate(data.channels) if c.location == "area"}
     if 0 not in idx:
         return None
@@ -119,10 +148,8 @@ def _area_columns(data: TransferData) -> tuple[dict[int, int], int, int] | None:
             j += 1
         return j
 
-    n_pos, n_neg = reach(1), reach(-1)
-    if max(n_pos, n_neg) == 0:
-        return None
-    return idx, n_pos, n_neg
+    cols = AreaColumns(idx, reach(1), reach(-1))
+    return cols if cols.reach > 0 else None
 
 
 def sum_coefficients(data: TransferData, snr_min: float = 1.0) -> tuple[dict[int, float], int, int, bool] | None:
@@ -141,11 +168,11 @@ def sum_coefficients(data: TransferData, snr_min: float = 1.0) -> tuple[dict[int
         The total sum is sum_columns c_j H[:, column]; the alternating sum
         uses (-1)^|j| c_j. None when area 0 or all its neighbours are missing.
     """
-    cols = _area_columns(data)
+    cols = area_columns(data)
     if cols is None:
         return None
     idx, n_pos, n_neg = cols
-    n_max = max(n_pos, n_neg)
+    n_max = cols.reach
     std = data.std
 
     def snr(j: int) -> float:

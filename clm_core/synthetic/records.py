@@ -150,6 +150,71 @@ def _newmark(M: Any, C: Any, K: Any, dt: float, F: Array, dofs: Sequence[int], w
     return out
 
 
+def _hammer_test(
+    M: Any,
+    C: Any,
+    K: Any,
+    force_dof: int,
+    dofs: Sequence[int],
+    quantity: str,
+    fs: float,
+    duration: float,
+    hit_times: Sequence[float],
+    pulse: Literal["half-sine", "eq1"],
+    pulse_duration: float,
+    amplitude: float,
+    oversample: int,
+    what: str,
+) -> tuple[Array, Array, dict[str, Any]]:
+    """Hammer hits on ``force_dof`` of the system (M, C, K), integrated and acquired.
+
+    Parameters
+    ----------
+    M, C, K : matrices
+        Mass [kg], damping [N s/m] and stiffness [N/m] matrices (n_dof, n_dof).
+    force_dof : int
+        The hit DOF.
+    dofs : sequence of int
+        DOFs with a sensor.
+    quantity : {'displacement', 'velocity', 'acceleration'}
+        What the sensors measure.
+    fs, duration, hit_times, pulse, pulse_duration, amplitude, oversample
+        As in :func:`simulate_impact` ([Hz], [s], [s], -, [s], [N], -).
+    what : str
+        Name of the test for the divergence error.
+
+    Returns
+    -------
+    t : (n,) array
+        Sample times [s].
+    data : (n, 1 + len(dofs)) array
+        Force [N], then the sensors (SI units), after the anti-alias filter.
+    settings : dict
+        The acquisition settings for ``truth.yaml`` (``fs_hz`` ... ``simulation``).
+    """
+    dt = 1.0 / (fs * oversample)
+    n_t = int(round(duration * fs)) * oversample
+    t = np.arange(n_t, dtype=np.float64) * dt
+    f = np.zeros_like(t)
+    for th in hit_times:
+        f += hammer_pulse(t, pulse, amplitude, th, pulse_duration)
+    F = np.zeros((n_t, M.shape[0]))
+    F[:, force_dof] = f
+    uva = _newmark(M, C, K, dt, F, dofs, what)
+    q = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
+    ts, data = _acquire(t, np.column_stack([f, uva[q]]), oversample)
+    settings = {
+        "fs_hz": fs,
+        "duration_s": duration,
+        "hit_times_s": list(hit_times),
+        "pulse": pulse,
+        "pulse_duration_s": pulse_duration,
+        "amplitude_N": amplitude,
+        "simulation": f"Newmark average acceleration, dt = {dt:g} s, anti-alias FIR + decimation by {oversample}",
+    }
+    return ts, data, settings
+
+
 def simulate_impact(
     soil: SoilParams | None = None,
     n_areas: int = 41,
@@ -199,19 +264,9 @@ def simulate_impact(
     if any(abs(j) > n for j in measured):
         raise CalibrationError(f"measured areas {measured}: must lie in -{n}..{n}")
     units = units or {"displacement": "m", "velocity": "m/s", "acceleration": "m/s^2"}[quantity]
-    dt = 1.0 / (fs * oversample)
-    n_t = int(round(duration * fs)) * oversample
-    t = np.arange(n_t, dtype=np.float64) * dt
-    f = np.zeros_like(t)
-    for th in hit_times:
-        f += hammer_pulse(t, pulse, amplitude, th, pulse_duration)
     M, C, K = chain_matrices(soil, n_areas)
-    F = np.zeros((n_t, n_areas))
-    F[:, n] = f
-    cols = [n + j for j in measured]
-    uva = _newmark(M, C, K, dt, F, cols, "impact simulation")
-    q = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
-    ts, data = _acquire(t, np.column_stack([f, uva[q]]), oversample)
+    ts, data, acquisition = _hammer_test(M, C, K, n, [n + j for j in measured], quantity, fs, duration, hit_times,
+                                         pulse, pulse_duration, amplitude, oversample, "impact simulation")
     fspec = _spec("/hammer/force", "force", "N", "area", 0)
     force = Signal(fspec, ts, data[:, 0])
     resp = tuple(
@@ -226,13 +281,7 @@ def simulate_impact(
         ),
         "quantity": quantity,
         "units": units,
-        "fs_hz": fs,
-        "duration_s": duration,
-        "hit_times_s": list(hit_times),
-        "pulse": pulse,
-        "pulse_duration_s": pulse_duration,
-        "amplitude_N": amplitude,
-        "simulation": f"Newmark average acceleration, dt = {dt:g} s, anti-alias FIR + decimation by {oversample}",
+        **acquisition,
     }
     return SyntheticRecord("impact", force, resp, None, {"soil": soil.to_dict()}, settings)
 
@@ -282,17 +331,9 @@ def simulate_receptance(
             raise CalibrationError(f"sleeper {j}: outside the {n_sleepers}-sleeper model track")
     dofs = [int(system.rail_w[system.sleeper_node[c + j]]) for j in rail_sleepers]
     dofs += [int(system.sleeper_dof[c + j]) for j in sleeper_sleepers]
-    dt = 1.0 / (fs * oversample)
-    n_t = int(round(duration * fs)) * oversample
-    t = np.arange(n_t, dtype=np.float64) * dt
-    f = np.zeros_like(t)
-    for th in hit_times:
-        f += hammer_pulse(t, pulse, amplitude, th, pulse_duration)
-    F = np.zeros((n_t, system.n_dof))
-    F[:, system.rail_w[system.sleeper_node[c]]] = f
-    uva = _newmark(system.M, system.C, system.K, dt, F, dofs, "receptance simulation")
-    q = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
-    ts, data = _acquire(t, np.column_stack([f, uva[q]]), oversample)
+    ts, data, acquisition = _hammer_test(system.M, system.C, system.K, int(system.rail_w[system.sleeper_node[c]]),
+                                         dofs, quantity, fs, duration, hit_times, pulse, pulse_duration, amplitude,
+                                         oversample, "receptance simulation")
     force = Signal(_spec("/track/hammer/force", "force", "N", "rail", 0), ts, data[:, 0])
     specs = [_spec(f"/track/rail_s{j:02d}/{quantity}", quantity, units, "rail", j) for j in rail_sleepers]
     specs += [_spec(f"/track/sleeper_s{j:02d}/{quantity}", quantity, units, "sleeper", j) for j in sleeper_sleepers]
@@ -303,13 +344,7 @@ def simulate_receptance(
         "sleeper_sleepers": list(sleeper_sleepers),
         "quantity": quantity,
         "units": units,
-        "fs_hz": fs,
-        "duration_s": duration,
-        "hit_times_s": list(hit_times),
-        "pulse": pulse,
-        "pulse_duration_s": pulse_duration,
-        "amplitude_N": amplitude,
-        "simulation": f"Newmark average acceleration, dt = {dt:g} s, anti-alias FIR + decimation by {oversample}",
+        **acquisition,
     }
     return SyntheticRecord("receptance", force, resp, None, params.to_dict(), settings)
 

@@ -70,7 +70,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict, Unpack
 
 import numpy as np
 import yaml
@@ -87,6 +87,7 @@ from clm_core.synthetic.records import SyntheticRecord, _area_topic, _spec, add_
 from clm_core.synthetic.writer import Storage, Style, plain, write_record
 
 __all__ = [
+    "RecordOptions",
     "ReferenceImpactBag",
     "RigorousReference",
     "reference_impact_record",
@@ -97,6 +98,19 @@ __all__ = [
 Shaping = Literal["gaussian", "butterworth"]
 Source = Literal["rigorous", "clm"]
 Quantity = Literal["displacement", "velocity"]
+
+
+class RecordOptions(TypedDict, total=False):
+    """Keywords of :func:`reference_impact_record` passed on by :func:`write_reference_impact_bag` (its defaults)."""
+
+    source: Source
+    quantity: Quantity
+    fs: float
+    amplitude: float
+    t0: float
+    td: float
+    shaping: Shaping
+    taper_db: float
 
 #: Default rigorous sweep: 0..150 Hz by 1 Hz (record length 1 s).
 DEFAULT_SWEEP_MAX = 150.0
@@ -459,14 +473,7 @@ def write_reference_impact_bag(
     fmin: float = 0.0,
     fmax: float = 80.0,
     norm: Literal["ls", "relative"] = "ls",
-    source: Source = "rigorous",
-    quantity: Quantity = "velocity",
-    fs: float = 1000.0,
-    amplitude: float = 10e3,
-    t0: float = 0.2,
-    td: float = 0.001,
-    shaping: Shaping = "gaussian",
-    taper_db: float = 40.0,
+    **record: Unpack[RecordOptions],
 ) -> ReferenceImpactBag:
     """Write a soil impact test bag of the rigorous half-space response to the Eq. (1) pulse.
 
@@ -497,8 +504,10 @@ def write_reference_impact_bag(
         Rigorous sweep 0..sweep_max by df [Hz] (record length 1 / df).
     fmin, fmax, norm
         Band [Hz] and norm of the direct CLM fit written to ``reference.yaml``.
-    source, quantity, fs, amplitude, t0, td, shaping, taper_db
-        See :func:`reference_impact_record`.
+    **record
+        ``source``, ``quantity``, ``fs`` [Hz], ``amplitude`` [N], ``t0`` [s],
+        ``td`` [s], ``shaping``, ``taper_db`` [dB]: the record, as in
+        :func:`reference_impact_record` (its defaults apply).
 
     Returns
     -------
@@ -523,17 +532,7 @@ def write_reference_impact_bag(
         ref = RigorousReference.from_calibration(reference, preset)
     else:
         ref = reference
-    rec, resp = reference_impact_record(
-        ref,
-        source=source,
-        quantity=quantity,
-        fs=fs,
-        amplitude=amplitude,
-        t0=t0,
-        td=td,
-        shaping=shaping,
-        taper_db=taper_db,
-    )
+    rec, resp = reference_impact_record(ref, **record)
     if snr_db is not None:
         rec = add_noise(rec, snr_db, seed)
     data = _reference_yaml(ref, rec, storage, style)

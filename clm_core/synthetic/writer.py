@@ -22,15 +22,15 @@ no ROS installation needed).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 import yaml
 
-from clm_core.calibration.channels import ChannelMap, ChannelSpec, parse_channel_map
+from clm_core.calibration.channels import ChannelMap, ChannelSpec, parse_channel_map, spec_dict
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.signals import Signal
 from clm_core.io.bags import BagWriter
@@ -73,21 +73,9 @@ class SyntheticBag:
 def channel_map_for(rec: SyntheticRecord, style: Style = "stamped", block_size: int = 100) -> ChannelMap:
     """The channel map describing a record written with :func:`write_bag`."""
     def entry(s: ChannelSpec, with_loc: bool) -> dict[str, Any]:
-        e: dict[str, Any] = {"topic": s.topic, "units": s.units}
-        if s.name != s.topic:
-            e["name"] = s.name
-        if with_loc:
-            if s.location == "area":
-                e["area"] = s.index
-            else:
-                e["sleeper"] = s.index
-                e["location"] = s.location
-            e["quantity"] = s.quantity
-        if s.field:
-            e["field"] = s.field
         if style == "block" and rec.method != "passby":
-            e["sample_rate"] = float(rec.settings["fs_hz"])
-        return e
+            s = replace(s, sample_rate=float(rec.settings["fs_hz"]))
+        return spec_dict(s, with_loc)
 
     data: dict[str, Any] = {"format": "clm-calibration-channels/1", "test": rec.method}
     if rec.force is not None:
@@ -270,6 +258,22 @@ def _write_passby(writer: BagWriter, rec: SyntheticRecord) -> None:
         writer.write(cs, st + _LOG_DELAY_NS, data)
 
 
+def _simulated_bag(
+    simulate: Callable[..., SyntheticRecord],
+    path: str | Path,
+    snr_db: float | None,
+    seed: int,
+    storage: Storage,
+    style: Style,
+    keywords: Mapping[str, Any],
+) -> SyntheticBag:
+    """``simulate(**keywords)``, noise at ``snr_db`` [dB] (None: none) with ``seed``, written by :func:`write_bag`."""
+    rec = simulate(**keywords)
+    if snr_db is not None:
+        rec = add_noise(rec, snr_db, seed)
+    return write_bag(rec, path, storage=storage, style=style)
+
+
 def write_impact_bag(
     path: str | Path,
     *,
@@ -285,10 +289,7 @@ def write_impact_bag(
     ``simulate_impact`` (``soil``, ``n_areas``, ``measured``, ``quantity``,
     ``fs``, ``duration``, ``hit_times``, ``pulse``, ...).
     """
-    rec = simulate_impact(**simulate)
-    if snr_db is not None:
-        rec = add_noise(rec, snr_db, seed)
-    return write_bag(rec, path, storage=storage, style=style)
+    return _simulated_bag(simulate_impact, path, snr_db, seed, storage, style, simulate)
 
 
 def write_receptance_bag(
@@ -301,10 +302,7 @@ def write_receptance_bag(
     **simulate: Any,
 ) -> SyntheticBag:
     """Simulate a rail receptance test (``simulate_receptance``), add noise, write the bag."""
-    rec = simulate_receptance(**simulate)
-    if snr_db is not None:
-        rec = add_noise(rec, snr_db, seed)
-    return write_bag(rec, path, storage=storage, style=style)
+    return _simulated_bag(simulate_receptance, path, snr_db, seed, storage, style, simulate)
 
 
 def write_passby_bag(
@@ -316,7 +314,4 @@ def write_passby_bag(
     **simulate: Any,
 ) -> SyntheticBag:
     """Simulate a pass-by (``simulate_passby``), add noise, write the bag (clm_msgs types)."""
-    rec = simulate_passby(**simulate)
-    if snr_db is not None:
-        rec = add_noise(rec, snr_db, seed)
-    return write_bag(rec, path, storage=storage)
+    return _simulated_bag(simulate_passby, path, snr_db, seed, storage, "stamped", simulate)
