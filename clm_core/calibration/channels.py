@@ -33,7 +33,6 @@ from typing import Any, Literal, get_args
 
 from clm_core.calibration.errors import CalibrationError
 from clm_core.checks import finite
-from clm_core.errors import ParameterError, PresetError
 from clm_core.params import read_yaml_mapping
 
 Quantity = Literal["force", "displacement", "velocity", "acceleration"]
@@ -224,10 +223,7 @@ def spec_dict(c: ChannelSpec, with_location: bool) -> dict[str, Any]:
 
 def _finite(where: str, key: str, value: Any) -> float:
     """``value`` as a finite float (:func:`clm_core.checks.finite`), refused as a channel-map error."""
-    try:
-        return finite(f"{where}: {key}", value)
-    except ParameterError as exc:
-        raise CalibrationError(str(exc)) from None
+    return finite(f"{where}: {key}", value, error=CalibrationError)
 
 
 def _spec(entry: Any, where: str, kind: Literal["force", "channel"]) -> ChannelSpec:
@@ -394,11 +390,7 @@ def load_channel_map(path: str | Path) -> ChannelMap:
         File missing, not YAML, or an invalid map (see :func:`parse_channel_map`).
     """
     p = Path(path)
-    try:
-        data = read_yaml_mapping(p, "channel map")
-    except PresetError as exc:
-        msg = str(exc)
-        raise CalibrationError(msg if msg.startswith("channel map") else f"channel map {msg}") from None
+    data = read_yaml_mapping(p, "channel map", error=CalibrationError)
     return parse_channel_map(data, str(p))
 
 
