@@ -14,7 +14,8 @@
 # only the ROS part); every other argument goes to both. Each test runs once.
 # Both parts run; the exit status is the first failing part's (a part that
 # selects no test counts as passed when the other ran tests).
-# Env: CLM_CORE_VENV (default .venv-core), CLM_VENV (default .venv).
+# Env: CLM_TEST_PARTS (default "core ros": the parts allowed to run), CLM_CORE_VENV
+# (default .venv-core), CLM_VENV (default .venv).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
@@ -52,6 +53,8 @@ if [ "$any_path" = 0 ]; then
     core_paths=("--ignore=$ros_tests")  # testpaths (pyproject): tests
     ros_paths=("$ros_tests")
 fi
+case " ${CLM_TEST_PARTS:-core ros} " in *" core "*) ;; *) core_paths=() ;; esac
+case " ${CLM_TEST_PARTS:-core ros} " in *" ros "*) ;; *) ros_paths=() ;; esac
 # a path like `tests` gives --ignore once per occurrence and tests/ros to the ROS part once
 if [ "${#ros_paths[@]}" -gt 0 ]; then
     mapfile -t ros_paths < <(printf '%s\n' "${ros_paths[@]}" | awk '!seen[$0]++')
@@ -84,6 +87,7 @@ if [ "${#ros_paths[@]}" -gt 0 ]; then
     run_part ros "$ros_venv/bin/python" -m pytest "${opts[@]}" "${ros_paths[@]}"
 fi
 
+if [ "${#names[@]}" = 0 ]; then echo "test.sh: no part selected (CLM_TEST_PARTS=${CLM_TEST_PARTS:-})" >&2; exit 5; fi
 # exit 5 (no test selected) passes when another part ran tests
 rc=0 ran=0
 for s in "${status[@]}"; do [ "$s" = 0 ] && ran=1; done
