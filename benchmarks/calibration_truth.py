@@ -33,7 +33,7 @@ the records by another route, as an independent CLM-chain integrator would:
   own rms over the same window).
 
 Used by ``benchmarks/calibration_coverage.py`` and the tests of issue 14
-(``tests/test_calibration_trust.py``).
+(``tests/calibration/test_trust.py``).
 """
 
 from __future__ import annotations

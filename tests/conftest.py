@@ -1,34 +1,16 @@
-"""Project-wide test configuration.
+"""What every test needs: the report rules applied to every figure a test renders.
 
-``CLM_REQUIRE_ROS=1`` (set by ``scripts/test.sh``, hence by CI) turns a missing
-ROS 2 environment into an error instead of skipped ROS tests: a green run
-then always includes the multi-process DDS tests.
+Nothing here knows about ROS: core tests run in a venv without it
+(``scripts/test.sh``, guarded by :mod:`tests.core_only`), the ROS tests'
+own configuration is tests/ros/conftest.py.
 """
 
 from __future__ import annotations
 
-import os
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
-CLM_ROS_SRC = ROOT / "ros2_ws" / "src" / "clm_ros"
-if str(CLM_ROS_SRC) not in sys.path:
-    sys.path.insert(0, str(CLM_ROS_SRC))
-
-
-def pytest_configure(config: pytest.Config) -> None:
-    if os.environ.get("CLM_REQUIRE_ROS") == "1":
-        try:
-            import clm_msgs.msg  # noqa: F401
-            import rclpy  # noqa: F401
-        except ImportError as exc:
-            raise pytest.UsageError(
-                f"CLM_REQUIRE_ROS=1 but the ROS environment is missing ({exc}); run scripts/setup_ros.sh VENV"
-            ) from exc
 
 
 @pytest.fixture(autouse=True)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import inspect
 import math
 from pathlib import Path
 
@@ -78,7 +77,7 @@ def test_a_setting_refuses_an_invalid_default() -> None:
 
 
 def test_one_default_everywhere() -> None:
-    """The demo's run (demo.yaml, clm demo, the launcher) and the vehicle run use the schema's defaults."""
+    """The demo's run (demo.yaml) and the vehicle run use the schema's defaults (launcher: tests/ros)."""
     from clm_core.vehicle.run import VehicleRunSpec
 
     spec = VehicleRunSpec()
@@ -95,12 +94,3 @@ def test_one_default_everywhere() -> None:
                 value == SETTINGS[name].default, (name, value)
             checked += 1
     assert checked >= 15
-    try:
-        from clm_ros.launcher import run_demo
-    except ImportError:  # the ROS layer is not installed
-        return
-    sig = inspect.signature(run_demo).parameters
-    names = {"rate_hz": "rate"}
-    for p in ("vehicle", "speed", "duration", "track", "soil", "model", "rate_hz", "dt", "n_sleepers",
-              "irregularity", "seed", "closed_loop", "storage"):
-        assert sig[p].default == SETTINGS[names.get(p, p)].default, p

@@ -25,7 +25,7 @@ the compiled code:
 The arithmetic is that of the Python path (positions and irregularity with
 numpy, then :func:`sdof_vehicle_steps`) operation by operation; only
 library functions (``cos``, ``interp``) may round differently
-(tests/test_vehicle_streaming.py compares the two).
+(tests/vehicle/test_streaming.py compares the two).
 """
 
 from __future__ import annotations

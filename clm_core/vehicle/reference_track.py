@@ -11,7 +11,7 @@ the Hermite shape functions of :meth:`TrackSystem.point_load`. It does not
 move with the train: the track must be long enough for the whole run.
 
 It is slower than the streaming engine and exists to validate it: the same
-coupled run on both engines must agree (tests/test_vehicle_coupled.py), and
+coupled run on both engines must agree (tests/vehicle/test_coupled.py), and
 its full state gives the total energy of the coupled system.
 """
 

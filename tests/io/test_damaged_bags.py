@@ -5,18 +5,15 @@ Real damaged files: 4 kB zeroed in the middle of an mcap (with chunk CRCs, as
 our writer makes them, and without, as rosbags or older tools do), a
 truncated file, a deleted metadata.yaml, rows deleted from an sqlite3 bag,
 metadata that lists more messages than the file holds, an empty bag.
-``clm replay`` and ``clm calibrate`` are run as the user runs them; ``clm
-play`` over DDS is in tests/ros/test_bag_tools.py.
+``clm calibrate`` is run as the user runs it; ``clm replay`` on damaged bags is in
+tests/ros/test_replay_damaged.py, ``clm play`` over DDS in tests/ros/test_bag_tools.py.
 """
 
 from __future__ import annotations
 
-import os
-import re
 import shutil
 import sqlite3
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +23,7 @@ from clm_core.io import messages as msgs
 from clm_core.io.bags import BagReader, BagWriter
 from clm_core.io.errors import BagError
 from clm_core.io.timebase import NS
+from tests.clitools import run_clm
 
 T0 = 1_700_000_000 * NS
 N = 3000  # ~10 chunks of 1 MB with the sleeper responses
@@ -152,73 +150,12 @@ def test_sqlite3_rows_missing(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------------------- the commands
 
 
-CLM_ROS_SRC = Path(__file__).resolve().parents[2] / "ros2_ws" / "src" / "clm_ros"
-
-
 def _clm(*args: str) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ)  # `clm replay` lives in clm_ros: importable from the source tree too
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(CLM_ROS_SRC), env.get("PYTHONPATH", "")) if p)
-    return subprocess.run([sys.executable, "-m", "clm_core.cli", *args], capture_output=True, text=True, timeout=600,
-                          env=env)
+    return run_clm(args)
 
 
 def _leftovers(d: Path) -> list[str]:
     return sorted(p.name for p in d.iterdir() if "partial" in p.name)
-
-
-@pytest.fixture(scope="module")
-def replay_ok() -> None:
-    pytest.importorskip("clm_ros.replay", reason="clm replay needs clm_ros")
-
-
-def test_replay_refuses_a_damaged_bag_and_leaves_nothing(good: Path, tmp_path: Path, replay_ok: None) -> None:
-    bag = _copy(good, tmp_path / "zeroed")
-    _zero_middle(bag)
-    out = tmp_path / "out"
-    p = _clm("replay", str(bag), "--out", str(out), "--sleepers", "21")
-    assert p.returncode == 2, p.stderr
-    assert "is damaged: chunk" in p.stderr and "--allow-partial" in p.stderr
-    assert not out.exists() and _leftovers(tmp_path) == []
-    p = _clm("replay", str(bag), "--out", str(out), "--sleepers", "21", "--allow-partial")
-    assert p.returncode == 0, p.stderr
-    m = re.search(r"replay: (\d+) wheel-load messages read, (\d+) accepted.*partial input: (\d+) of the (\d+) listed",
-                  p.stdout)
-    assert m, p.stdout
-    read, accepted, read_again, listed = map(int, m.groups())
-    assert listed == N and 0 < read == read_again < N
-    assert "warning: partial input: chunk" in p.stderr
-    with BagReader(out) as r:  # the output is complete for what was read, and says so in its metadata
-        assert r.topics["/wheel_loads"].message_count == read
-        assert r.topics["/sleeper_response"].message_count == accepted
-        assert sum(1 for _ in r.messages()) == read + 2 * accepted
-
-
-def test_replay_empty_bag_and_wrong_type(tmp_path: Path, replay_ok: None) -> None:
-    with BagWriter(tmp_path / "empty") as w:
-        w.add_topic("/wheel_loads", msgs.WHEEL_LOADS)
-    p = _clm("replay", str(tmp_path / "empty"), "--out", str(tmp_path / "o1"))
-    assert p.returncode == 2 and "is empty: it holds no messages (/wheel_loads)" in p.stderr, p.stderr
-    with BagWriter(tmp_path / "strings") as w:
-        c = w.add_topic("/wheel_loads", "std_msgs/msg/String")
-        w.write_msg(c, T0, w.typestore.types["std_msgs/msg/String"](data="not a wheel"))
-    p = _clm("replay", str(tmp_path / "strings"), "--topic", "/wheel_loads", "--out", str(tmp_path / "o2"))
-    assert p.returncode == 2, p.stderr
-    assert "topic /wheel_loads carries std_msgs/msg/String, expected clm_msgs/msg/WheelLoads" in p.stderr
-    p = _clm("replay", str(tmp_path / "strings"), "--out", str(tmp_path / "o3"))
-    assert p.returncode == 2 and "no clm_msgs/msg/WheelLoads topic; has ['/wheel_loads (std_msgs/msg/String)']" in (
-        p.stderr
-    ), p.stderr
-    assert not any((tmp_path / o).exists() for o in ("o1", "o2", "o3")) and _leftovers(tmp_path) == []
-
-
-def test_replay_failing_midway_leaves_nothing(tmp_path: Path, replay_ok: None) -> None:
-    with BagWriter(tmp_path / "bad") as w:
-        c = w.add_topic("/wheel_loads", msgs.WHEEL_LOADS)
-        for k in range(30):
-            w.write(c, T0 + k * 1_000_000, _wheels(k) if k != 20 else b"\x00\x01\x00\x00garbage")
-    p = _clm("replay", str(tmp_path / "bad"), "--out", str(tmp_path / "out"), "--sleepers", "21")
-    assert p.returncode == 2 and "message 21 on /wheel_loads cannot be decoded" in p.stderr, p.stderr
-    assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
 
 
 @pytest.fixture(scope="module")

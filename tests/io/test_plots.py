@@ -2,7 +2,7 @@
 
 Every figure the commands write is rendered here from real runs into
 ``tmp_path`` (receptance, soil chain, moving loads, vehicle, calibration,
-soil calibration, and the demo plots from the shipped demo bag) and
+soil calibration; the demo plots of clm_ros: tests/ros/test_launcher.py) and
 checked: axes labelled with units, legends off the curve extremes, valid
 non-blank PNGs (tests/io/figure_checks.py), plus the specific points of
 issue 13 item 8. The root conftest applies the same checks to every figure
@@ -31,20 +31,11 @@ from clm_core.synthetic import add_noise, simulate_impact, write_bag
 from tests.io.figure_checks import curve_extremes, figure_problems, png_problems
 
 REPO = Path(__file__).resolve().parents[2]
-DEMO_BAG = REPO / "bags" / "demo" / "demo_bag"
 
 #: Every figure file of the suite (clm_core.io.plots module docstring).
 CORE_FIGURES = {"receptance.png", "chain.png", "simulate.png", "wheel_loads.png", "soil_forces.png", "spectra.png",
                 "transfer_functions.png", "sums.png", "time_histories.png", "receptances.png"}
 DEMO_FIGURES = {"sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png"}
-
-
-def _have_ros_layer() -> bool:
-    try:
-        import clm_ros.launcher  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 @pytest.fixture(scope="module")
@@ -70,11 +61,6 @@ def rendered(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, l
                      str(root / "calibrate")]) == 0
         assert main(["soil-calibrate", "--profile", "medium", "--areas", "5", "--fmax", "40", "--sweep-max", "40",
                      "--df", "5", "--out", str(root / "soil-calibrate")]) == 0
-        if _have_ros_layer():
-            from clm_ros.launcher import analyse_bag
-
-            (root / "demo").mkdir()
-            analyse_bag(DEMO_BAG, root / "demo")
         yield root, record
     finally:
         plots.figure_observers.remove(observe)
@@ -90,8 +76,6 @@ def test_every_figure_of_the_suite_is_rendered(rendered: tuple[Path, list[tuple[
     root, record = rendered
     names = {p.name for p, _ in record}
     assert CORE_FIGURES <= names
-    if _have_ros_layer():
-        assert {p.name for p, _ in record if p.parent.name == "demo"} == DEMO_FIGURES
     # one observed figure per PNG file written, and nothing written without being observed
     assert sorted(p for p, _ in record) == sorted(p for p in root.rglob("*.png"))
 
@@ -134,15 +118,15 @@ def test_wheel_loads_one_panel_per_wheel(rendered: tuple[Path, list[tuple[Path, 
 
     root, record = rendered
     n = json.loads((root / "vehicle" / "summary.json").read_text())["settings"]["n_wheels"]
-    for rel, expect in (("vehicle/wheel_loads.png", n), ("demo/wheel_loads.png", 4)):
-        if rel.startswith("demo") and not _have_ros_layer():
-            continue
-        fig = _figure(record, rel)
-        panels = [ax for ax in fig.axes if ax.get_ylabel().startswith("wheel ") and "[kN]" in ax.get_ylabel()]
-        assert [ax.get_ylabel().split("\n")[0] for ax in panels] == [f"wheel {i}" for i in range(expect)]
-        # one load curve per panel, all panels on one load scale and one time axis
-        assert all(len([ln for ln in ax.get_lines() if ln.get_label() == "wheel load"]) == 1 for ax in panels)
-        assert len({ax.get_ylim() for ax in panels}) == 1 and len({ax.get_xlim() for ax in panels}) == 1
+    check_wheel_panels(_figure(record, "vehicle/wheel_loads.png"), n)
+
+
+def check_wheel_panels(fig: Figure, expect: int) -> None:
+    """One panel per wheel (``expect`` wheels), one load curve each, one load scale and one time axis."""
+    panels = [ax for ax in fig.axes if ax.get_ylabel().startswith("wheel ") and "[kN]" in ax.get_ylabel()]
+    assert [ax.get_ylabel().split("\n")[0] for ax in panels] == [f"wheel {i}" for i in range(expect)]
+    assert all(len([ln for ln in ax.get_lines() if ln.get_label() == "wheel load"]) == 1 for ax in panels)
+    assert len({ax.get_ylim() for ax in panels}) == 1 and len({ax.get_xlim() for ax in panels}) == 1
 
 
 def test_many_wheels_are_spread_over_eight_panels(tmp_path: Path) -> None:
@@ -190,28 +174,6 @@ def test_chain_closed_forms_stay_visible_on_the_chain_curves(
             assert isinstance(every, tuple)
             n_marks = len(range(every[0], len(m.get_xdata()), every[1]))
             assert 5 < n_marks < len(m.get_xdata()) / 3
-
-
-def test_soil_force_on_the_deflection_plot_has_its_own_axis_in_kn(
-    rendered: tuple[Path, list[tuple[Path, Figure]]],
-) -> None:
-    if not _have_ros_layer():
-        pytest.skip("demo plots need the ROS layer (clm_ros) to read the demo bag")
-    _, record = rendered
-    fig = _figure(record, "demo/rail_deflection.png")
-    assert len(fig.axes) == 2
-    host, twin = fig.axes
-    assert np.allclose(host.get_position().bounds, twin.get_position().bounds)
-    assert "[mm]" in host.get_ylabel() and "[kN]" in twin.get_ylabel()
-    assert twin.yaxis.get_label_position() == "right"
-    (force,) = twin.get_lines()
-    (defl,) = host.get_lines()
-    # unscaled: the soil force is in kN on its own axis (tens of kN), the deflection in mm
-    assert 10.0 < np.nanmax(force.get_ydata()) < 100.0 and 0.3 < np.nanmax(defl.get_ydata()) < 5.0
-    # zero of both axes at the same height (both drawn downwards, compression +)
-    z_host = host.transData.transform((0.0, 0.0))[1]
-    z_twin = twin.transData.transform((0.0, 0.0))[1]
-    assert abs(z_host - z_twin) < 1.0 and host.yaxis_inverted() and twin.yaxis_inverted()
 
 
 def test_a_legend_on_a_peak_is_moved(tmp_path: Path) -> None:

@@ -8,19 +8,22 @@ clear line (no traceback) and no output bag.
 
 from __future__ import annotations
 
+import subprocess
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from clm_core.io import messages as msgs
 from clm_core.io.bags import BagReader, BagWriter
 from clm_core.online import OnlineTrackModel
 from clm_core.params import load_model
-from tests.io.test_damaged_bags import _clm
-from tests.onlinetools import MS, WALL, answers, stream
+from tests.clitools import run_clm
+from tests.online.tools import MS, WALL, answers, stream
 
-pytest.importorskip("clm_ros.replay", reason="clm replay needs clm_ros")
+
+def _clm(*args: str) -> subprocess.CompletedProcess[str]:
+    return run_clm(args)
+
 
 def _bag(path: Path, frames: list[tuple[int, list[int], list[float], list[float]]], junk: tuple[int, ...] = ()) -> Path:
     with BagWriter(path) as w:

@@ -29,7 +29,7 @@ from clm_core.params import SoilParams, load_soil
 from clm_core.soil.chain import chain_response
 from clm_core.synthetic import add_noise, simulate_impact
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NAMES = ("mf", "kf", "df", "kc", "dc")
 STIFF = SoilParams(model="clm", mf=600.0, kf=150e6, df=1.1e6, kc=300e6, dc=-250e3)  # the soil of issue 14
 Z95 = 1.959964

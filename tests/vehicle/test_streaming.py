@@ -163,7 +163,7 @@ def test_track_correction_is_low_passed(params: ModelParams) -> None:
 def test_open_loop_dipped_joint_p2_as_the_coupled_run(params: ModelParams) -> None:
     """The predictor alone (equivalent SDOF track, no feedback) gives the coupled run's dipped-joint P2 force.
 
-    P2 as in tests/test_vehicle_coupled.py: the wheel load low-pass filtered
+    P2 as in tests/vehicle/test_coupled.py: the wheel load low-pass filtered
     at 100 Hz (4th-order Butterworth, zero phase). The fast P1 peak depends on
     the track's high-frequency dynamics, which the predictor does not claim
     (observed: P1 155 kN against 121 kN; P2 increments within 2 %): 10 % of

@@ -1,4 +1,7 @@
-"""Streams of wheel-load frames and exact comparisons of online models (helpers of the tests/test_online*.py)."""
+"""Streams of wheel-load frames and exact comparisons of online models.
+
+Helpers of tests/online and tests/ros/test_replay_online.py.
+"""
 
 from __future__ import annotations
 

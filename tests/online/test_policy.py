@@ -21,7 +21,7 @@ from clm_core.io.errors import MessageError
 from clm_core.online import InputPolicy, OnlineTrackModel, Reason, Rejected, WheelFrame
 from clm_core.params import load_model
 from clm_core.solver import TrackSimulator
-from tests.onlinetools import MS, WALL, answers, same, state, stream
+from tests.online.tools import MS, WALL, answers, same, state, stream
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ from clm_core.cli import main
 from clm_core.params import load_params_file, load_soil, load_track
 from clm_core.synthetic import add_noise, simulate_impact, write_bag
 
-HERE = Path(__file__).resolve().parents[1]
-SHIPPED = HERE / "bags" / "calibration"
+ROOT = Path(__file__).resolve().parents[2]
+SHIPPED = ROOT / "bags" / "calibration"
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from clm_core.online import InputPolicy, OnlineTrackModel, Rejected, WheelFrame
 from clm_core.params import ModelParams, load_model
-from tests.onlinetools import MS, WALL, answers, same, state, stream
+from tests.online.tools import MS, WALL, answers, same, state, stream
 
 PARAMS: ModelParams = load_model("mevergnies", "mevergnies", "clm")
 

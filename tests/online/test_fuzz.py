@@ -24,7 +24,7 @@ from clm_core.io.errors import MessageError
 from clm_core.io.messages import frame_from_msg, typestore, wheel_loads_msg
 from clm_core.online import OnlineTrackModel, Reason, Rejected, ResponseFrame, WheelFrame
 from clm_core.params import ModelParams, load_model
-from tests.onlinetools import FIELDS, MS, WALL, state, stream
+from tests.online.tools import FIELDS, MS, WALL, state, stream
 
 PARAMS: ModelParams = load_model("mevergnies", "mevergnies", "clm")
 TS = typestore()

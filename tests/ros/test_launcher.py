@@ -1,0 +1,82 @@
+"""clm_ros.launcher (``clm demo``): its defaults are the schema's, its plots pass the report rules.
+
+The core side of both checks is in tests/test_settings.py (demo.yaml) and
+tests/io/test_plots.py (every figure of clm_core.io.plots); the launcher
+lives in clm_ros, hence here. The demo plots are drawn from the shipped demo
+bag by :func:`clm_ros.launcher.analyse_bag`, no DDS involved.
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+
+import numpy as np
+import pytest
+from clm_ros.launcher import analyse_bag, run_demo
+from matplotlib.figure import Figure
+
+from clm_core.io import plots
+from clm_core.settings import SETTINGS
+from tests.io.figure_checks import figure_problems, png_problems
+from tests.io.test_plots import DEMO_FIGURES, check_wheel_panels
+
+REPO = Path(__file__).resolve().parents[2]
+DEMO_BAG = REPO / "bags" / "demo" / "demo_bag"
+
+
+def test_run_demo_defaults_are_the_schema_defaults() -> None:
+    sig = inspect.signature(run_demo).parameters
+    names = {"rate_hz": "rate"}
+    for p in ("vehicle", "speed", "duration", "track", "soil", "model", "rate_hz", "dt", "n_sleepers",
+              "irregularity", "seed", "closed_loop", "storage"):
+        assert sig[p].default == SETTINGS[names.get(p, p)].default, p
+
+
+@pytest.fixture(scope="module")
+def demo_figures(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Figure]]:
+    """The demo plots of the shipped demo bag: (output directory, {file name: figure})."""
+    out = tmp_path_factory.mktemp("demo")
+    record: list[tuple[Path, Figure]] = []
+
+    def observe(fig: Figure, path: Path) -> None:
+        record.append((path, fig))
+
+    plots.figure_observers.append(observe)
+    try:
+        analyse_bag(DEMO_BAG, out)
+    finally:
+        plots.figure_observers.remove(observe)
+    # one observed figure per PNG file written, and nothing written without being observed
+    assert sorted(p for p, _ in record) == sorted(out.rglob("*.png"))
+    return out, {p.name: fig for p, fig in record}
+
+
+def test_demo_plots_follow_the_report_rules(demo_figures: tuple[Path, dict[str, Figure]]) -> None:
+    out, figs = demo_figures
+    assert set(figs) == DEMO_FIGURES
+    problems = [f"{name}: {p}" for name, fig in figs.items() for p in figure_problems(fig)]
+    problems += [f"{name}: {p}" for name in figs for p in png_problems(out / name)]
+    assert not problems, "\n".join(problems)
+    check_wheel_panels(figs["wheel_loads.png"], 4)
+
+
+def test_soil_force_on_the_deflection_plot_has_its_own_axis_in_kn(
+    demo_figures: tuple[Path, dict[str, Figure]],
+) -> None:
+    fig = demo_figures[1]["rail_deflection.png"]
+    assert len(fig.axes) == 2
+    host, twin = fig.axes
+    assert np.allclose(host.get_position().bounds, twin.get_position().bounds)
+    assert "[mm]" in host.get_ylabel() and "[kN]" in twin.get_ylabel()
+    assert twin.yaxis.get_label_position() == "right"
+    (force,) = twin.get_lines()
+    (defl,) = host.get_lines()
+    # unscaled: the soil force is in kN on its own axis (tens of kN), the deflection in mm
+    assert 10.0 < np.nanmax(force.get_ydata()) < 100.0 and 0.3 < np.nanmax(defl.get_ydata()) < 5.0
+    # zero of both axes at the same height (both drawn downwards, compression +)
+    z_host = host.transData.transform((0.0, 0.0))[1]
+    z_twin = twin.transData.transform((0.0, 0.0))[1]
+    assert abs(z_host - z_twin) < 1.0 and host.yaxis_inverted() and twin.yaxis_inverted()
+
+
