@@ -75,8 +75,10 @@ class Progress:
         self.update_to(round(100 * min(max(frac, 0.0), 1.0)))
 
     def close(self) -> None:
-        """Remove the bar."""
+        """Draw the bar's final count once (tqdm redraws at most every 0.1 s, so the last updates may not have
+        been drawn), then remove it."""
         if self._bar is not None:
+            self._bar.refresh()
             self._bar.close()
             self._bar = None
 
