@@ -573,7 +573,7 @@ class CalibrationNode(Node):
         self._stop.set()
         self._inbox.put(None)
         self.action_server.destroy()
-        super().destroy_node()
+        super().destroy_node()  # type: ignore[no-untyped-call]  # rclpy leaves Node.destroy_node unannotated
 
 
 def _spin_until(executor: SingleThreadedExecutor, done: Any, timeout: float) -> None:

@@ -213,7 +213,9 @@ def lag_values(lag: LagSummary) -> dict[str, Any]:
     if not lag.available:
         text = f"unavailable: {lag.reason}"
         return {"lag_median_s": text, "lag_p99_s": text, "lag_max_s": text, "waiting": lag.waiting}
-    fmt = lambda x: "nan" if np.isnan(x) else f"{x:.6f}"  # noqa: E731
+    def fmt(x: float) -> str:
+        return "nan" if np.isnan(x) else f"{x:.6f}"
+
     return {
         "answers_in_period": lag.answers,
         "lag_median_s": fmt(lag.median),

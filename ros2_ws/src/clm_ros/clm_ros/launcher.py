@@ -45,7 +45,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -71,23 +71,32 @@ TOPICS = {
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 
+_V = TypeVar("_V", float, int, str, bool)
+
+
+def _default(setting: settings.Setting[_V]) -> _V:
+    """The default of a run setting that has one (not automatic), as its own type."""
+    if setting.default is None:
+        raise ClmRosError(f"setting {setting.name} has no default (automatic: {setting.none_means})")
+    return setting.default
+
 
 def run_demo(
     out_dir: str | Path = "results/demo",
-    vehicle: str = settings.VEHICLE.default,
-    speed: float = settings.SPEED.default,
-    duration: float = settings.DURATION.default,
-    track: str = settings.TRACK.default,
-    soil: str = settings.SOIL.default,
-    model: str = settings.MODEL.default,
-    rate_hz: float = settings.RATE.default,
-    dt: float = settings.DT.default,
-    n_sleepers: int = settings.N_SLEEPERS.default,
-    irregularity: str = settings.IRREGULARITY.default,
-    seed: int = settings.SEED.default,
-    closed_loop: bool = settings.CLOSED_LOOP.default,
-    storage: str = settings.STORAGE.default,
-    domain_id: int = settings.DOMAIN_ID.default,
+    vehicle: str = _default(settings.VEHICLE),
+    speed: float = _default(settings.SPEED),
+    duration: float = _default(settings.DURATION),
+    track: str = _default(settings.TRACK),
+    soil: str = _default(settings.SOIL),
+    model: str = _default(settings.MODEL),
+    rate_hz: float = _default(settings.RATE),
+    dt: float = _default(settings.DT),
+    n_sleepers: int = _default(settings.N_SLEEPERS),
+    irregularity: str = _default(settings.IRREGULARITY),
+    seed: int = _default(settings.SEED),
+    closed_loop: bool = _default(settings.CLOSED_LOOP),
+    storage: str = _default(settings.STORAGE),
+    domain_id: int = _default(settings.DOMAIN_ID),
     hold_domain: bool = True,
     timeout: float = 300.0,
     overwrite: bool = False,

@@ -155,7 +155,7 @@ class TrackNode(LifecycleNode):
         self._cpu_s = 0.0  # CPU time of the executor thread in the data path [s]
         self._rtf = (0, 0.0, 0.0, 0)
         self._rejected_seen = 0
-        self._clock = self.get_clock()
+        self._ros_clock = self.get_clock()  # not self._clock: that is rclpy Node's own attribute
         self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self._lag = LagMonitor(self._now_ns)
         # one /diagnostics publisher for the node's whole life (never one per configure)
@@ -209,7 +209,7 @@ class TrackNode(LifecycleNode):
         """The clock the stamps are read on [ns]: sim time with use_sim_time (0 until /clock), else system time
         (what ROS time is without sim time, read without the cost of a Time object)."""
         if self._sim_time:
-            return int(self._clock.now().nanoseconds)
+            return int(self._ros_clock.now().nanoseconds)
         return time.time_ns()
 
     # ------------------------------------------------------------------ model from parameters
@@ -642,7 +642,7 @@ class TrackNode(LifecycleNode):
         """Stop the diagnostics thread, then destroy the node."""
         self._diag.stop()
         self._accepting = False
-        super().destroy_node()
+        super().destroy_node()  # type: ignore[no-untyped-call]  # rclpy leaves Node.destroy_node unannotated
 
     def counts(self) -> dict[str, Any]:
         """Every counter of the node's life, as in ``/diagnostics`` (for tests and the launcher)."""
