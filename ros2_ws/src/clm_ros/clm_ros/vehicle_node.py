@@ -81,7 +81,7 @@ from clm_core.settings import setting
 from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
 from clm_ros.bag_tools import take_raw
-from clm_ros.node_main import exit_process, freeze_heap, run_node
+from clm_ros.node_main import freeze_heap, run_node
 from clm_ros.parameters import declare_settings
 
 NODE_NAME = "clm_vehicle_node"
@@ -624,10 +624,8 @@ def _ignore(_raw: bytes) -> None:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Console entry point ``vehicle_node``: run the node until SIGINT, SIGTERM or its last train; exit."""
-    code = run_node(VehicleNode, args, NODE_NAME)
-    if args is None:  # a process of its own (not called from Python code)
-        exit_process(code)
-    return code
+    # exit_now: a process of its own (not called from Python code) skips the interpreter's finalization
+    return run_node(lambda _signals: VehicleNode(), args, NODE_NAME, exit_now=args is None)
 
 
 if __name__ == "__main__":
