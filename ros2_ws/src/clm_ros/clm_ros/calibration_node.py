@@ -102,7 +102,7 @@ from typing import Any
 
 from clm_msgs.action import Calibrate as CalibrateAction
 from clm_msgs.srv import Calibrate
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.executors import SingleThreadedExecutor
@@ -134,6 +134,7 @@ from clm_ros.calibration_push import (
     push_values,
     target_service,
 )
+from clm_ros.diagnostics import publish_status
 from clm_ros.node_main import StopSignals, run_node
 from clm_ros.parameters import declare_settings
 
@@ -526,15 +527,7 @@ class CalibrationNode(Node):
             level = DiagnosticStatus.WARN
             if values["state"] == "idle":
                 message = f"idle; last calibration {last[:200]}"
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: calibration", message=message,
-                                  hardware_id="clm_core",
-                                  values=[KeyValue(key=k, value=v[:500]) for k, v in values.items()])
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        try:
-            self._pub_diag.publish(arr)
-        except Exception as exc:  # context shutting down: diagnostics are best effort
-            self.get_logger().debug(f"diagnostics not published: {exc}")
+        publish_status(self, self._pub_diag, f"{self.get_name()}: calibration", level, message, values)
 
     # ------------------------------------------------------------------ shutdown
 

@@ -33,7 +33,7 @@ A node used with it may define (all optional):
 ``exit_code``
     None while it runs; a number ends the process with that code (e.g. 2
     when the model cannot be configured at start, 0 after the last train).
-``service() -> float``
+``serve_due() -> float``
     Called between two turns of the executor: does what is due and returns
     how long the executor may wait for callbacks until its next action [s]
     (a node with a timetable, such as the vehicle node, needs no thread).
@@ -211,12 +211,12 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
 
 def _spin(node: Any, executor: Executor, stop: StopSignals, poll: float) -> int:
     """Spin until a signal, the end of the context or the node's ``exit_code``; return the exit code."""
-    service = getattr(node, "service", None)
+    serve_due = getattr(node, "serve_due", None)
     while not stop.requested() and rclpy.ok():
         exit_code = getattr(node, "exit_code", None)
         if exit_code is not None:
             return int(exit_code)
-        wait = poll if service is None else min(max(service(), 0.0), poll)
+        wait = poll if serve_due is None else min(max(serve_due(), 0.0), poll)
         try:
             executor.spin_once(timeout_sec=wait)
         except Exception as exc:  # a callback's failure must not end the node
