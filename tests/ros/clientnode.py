@@ -8,6 +8,7 @@ when a watched node process has exited.
 
 from __future__ import annotations
 
+import subprocess
 import time
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -63,6 +64,19 @@ class ClientNode:
                 out, err = p.communicate()
                 pytest.fail(f"{p.args} exited with {p.returncode} while waiting for {what}\n{out}\n{err or ''}")
 
+    def _outputs(self) -> str:
+        """The output of the watched processes (those still running are killed first: the wait failed)."""
+        text = []
+        for p in self.procs:
+            if p.poll() is None:
+                p.kill()
+            try:
+                out, err = p.communicate(timeout=10)
+            except (ValueError, subprocess.TimeoutExpired):  # already read, or stuck
+                continue
+            text.append(f"\n--- {p.args} (exit {p.returncode}):\n{out}\n{err or ''}")
+        return "".join(text)
+
     def wait_for(self, cond: Callable[[], Any], what: str, timeout: float | None = None,
                  allow_exit: bool = False) -> None:
         """Spin until ``cond()``; fail after ``timeout`` s (default :attr:`timeout`) or, unless ``allow_exit``,
@@ -73,7 +87,7 @@ class ClientNode:
             if not allow_exit:
                 self._check_procs(what)
             if time.monotonic() - t0 > timeout:
-                pytest.fail(f"{what}: not within {timeout} s {self.progress_note()}".rstrip())
+                pytest.fail(f"{what}: not within {timeout} s {self.progress_note()}".rstrip() + self._outputs())
             self.exec.spin_once(timeout_sec=self.spin_period)
 
     def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = None) -> Any:
