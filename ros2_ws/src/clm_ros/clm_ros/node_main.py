@@ -1,6 +1,7 @@
 """The life of a node process: start, spin, and a clean exit on SIGINT or SIGTERM (every clm node's ``main``).
 
-:func:`run_node` is the ``main`` of the track, vehicle and calibration nodes:
+:func:`run_node` is the ``main`` of the track, vehicle and calibration nodes (and of a fleet's pair: a
+vehicle and a track node on one executor, :mod:`clm_ros.fleet_pair`):
 
 - rclpy's default handling of SIGINT raises ``KeyboardInterrupt`` wherever
   the main thread happens to be (possibly in a callback that is publishing)
@@ -28,7 +29,7 @@
   never outlive it), the executor, the node, the context (the DDS
   participant leaves the graph, announced to its peers).
 
-A node used with it may define (all optional):
+A node used with it may define (all optional; with several nodes, each one's):
 
 ``exit_code``
     None while it runs; a number ends the process with that code (e.g. 2
@@ -148,15 +149,16 @@ class StopSignals:
 def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = None, name: str = "node",
              poll: float = 0.1, executor_type: Callable[[], Executor] = EventsExecutor,
              exit_now: bool = False) -> int:
-    """Create the node with ``make(stop)``, spin it until a signal or its ``exit_code``; return the exit code.
+    """Create the node(s) with ``make(stop)``, spin until a signal or an ``exit_code``; return the exit code.
 
     Parameters
     ----------
     make : callable
-        Builds the node (after ``rclpy.init``) given the :class:`StopSignals`
-        (long callbacks may check :meth:`StopSignals.requested`). An error of
-        :data:`START_ERRORS` raised here is printed as one line and gives exit
-        code 2.
+        Builds the node, or a tuple of nodes served by one executor (after
+        ``rclpy.init``), given the :class:`StopSignals` (long callbacks may
+        check :meth:`StopSignals.requested`). An error of
+        :data:`START_ERRORS` raised here is printed as one line and gives
+        exit code 2.
     args : sequence of str, optional
         Command line (``--ros-args ...``); default ``sys.argv``.
     name : str
@@ -168,64 +170,80 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
         message than the ``SingleThreadedExecutor``).
     exit_now : bool
         End the process with :func:`exit_process` once ROS is shut down (for
-        a console entry point; also done whenever the node's ``abandoned()``
+        a console entry point; also done whenever a node's ``abandoned()``
         is true).
     """
     stop = StopSignals()
     stop.install(interrupt=True)  # during start-up a signal interrupts at once
     os.environ.setdefault("RMW_FASTRTPS_PUBLICATION_MODE", PUBLICATION_MODE)
-    node: Any = None
+    nodes: tuple[Any, ...] = ()
     executor: Executor | None = None
     code = 0
     try:
         rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
         try:
-            node = make(stop)
+            made = make(stop)
         except START_ERRORS as exc:
             print(f"{name}: error: {bounded(' '.join(str(exc).split()))}", file=sys.stderr)
             return 2
+        nodes = tuple(made) if isinstance(made, (tuple, list)) else (made,)
         freeze_heap()
         executor = executor_type()
-        executor.add_node(node)
+        for node in nodes:
+            executor.add_node(node)
         stop.install(interrupt=False)
-        code = _spin(node, executor, stop, poll)
-        if stop.requested() and hasattr(node, "drain"):
-            node.drain(lambda done, timeout: _spin_until(executor, lambda: done() or stop.count > 1, timeout))
+        code = _spin(nodes, executor, stop, poll)
+        if stop.requested():
+            for node in _having(nodes, "drain"):
+                node.drain(lambda done, timeout: _spin_until(executor, lambda: done() or stop.count > 1, timeout))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         stop.install(interrupt=False)
-        if node is not None and hasattr(node, "stop"):
+        for node in _having(nodes, "stop"):
             node.stop()
         if executor is not None:
             executor.shutdown(timeout_sec=1.0)
-        if node is not None:
+        for node in reversed(nodes):
             node.destroy_node()
         rclpy.try_shutdown()
         get_default_context().destroy()  # the DDS participant goes now: its peers see it leave
         stop.restore()
-    if exit_now or (node is not None and getattr(node, "abandoned", lambda: False)()):
+    if exit_now or any(node.abandoned() for node in _having(nodes, "abandoned")):
         exit_process(code)
     return code
 
 
-def _spin(node: Any, executor: Executor, stop: StopSignals, poll: float) -> int:
-    """Spin until a signal, the end of the context or the node's ``exit_code``; return the exit code."""
-    serve_due = getattr(node, "serve_due", None)
+def _having(nodes: tuple[Any, ...], hook: str) -> list[Any]:
+    """The nodes that define ``hook``."""
+    return [node for node in nodes if hasattr(node, hook)]
+
+
+def _exit_code(nodes: tuple[Any, ...]) -> int | None:
+    """The first ``exit_code`` a node has set, None while every node should run."""
+    for node in nodes:
+        code = getattr(node, "exit_code", None)
+        if code is not None:
+            return int(code)
+    return None
+
+
+def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: float) -> int:
+    """Spin until a signal, the end of the context or a node's ``exit_code``; return the exit code."""
+    serve = [node.serve_due for node in _having(nodes, "serve_due")]
     while not stop.requested() and rclpy.ok():
-        exit_code = getattr(node, "exit_code", None)
-        if exit_code is not None:
-            return int(exit_code)
-        wait = poll if serve_due is None else min(max(serve_due(), 0.0), poll)
+        code = _exit_code(nodes)
+        if code is not None:
+            return code
+        wait = min([poll, *(max(s(), 0.0) for s in serve)])
         try:
             executor.spin_once(timeout_sec=wait)
         except Exception as exc:  # a callback's failure must not end the node
             if stop.requested() or not rclpy.ok():
                 break
             tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
-            node.get_logger().error(bounded(f"a callback raised and was skipped: {tb}"))
-    exit_code = getattr(node, "exit_code", None)
-    return int(exit_code) if exit_code is not None else 0
+            nodes[0].get_logger().error(bounded(f"a callback raised and was skipped: {tb}"))
+    return _exit_code(nodes) or 0
 
 
 def _spin_until(executor: Executor, done: Callable[[], bool], timeout: float) -> None:
