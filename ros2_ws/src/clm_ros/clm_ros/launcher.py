@@ -74,7 +74,7 @@ TOPICS = {
 _V = TypeVar("_V", float, int, str, bool)
 
 
-def _default(setting: settings.Setting[_V]) -> _V:
+def setting_default(setting: settings.Setting[_V]) -> _V:
     """The default of a run setting that has one (not automatic), as its own type."""
     if setting.default is None:
         raise ClmRosError(f"setting {setting.name} has no default (automatic: {setting.none_means})")
@@ -83,20 +83,20 @@ def _default(setting: settings.Setting[_V]) -> _V:
 
 def run_demo(
     out_dir: str | Path = "results/demo",
-    vehicle: str = _default(settings.VEHICLE),
-    speed: float = _default(settings.SPEED),
-    duration: float = _default(settings.DURATION),
-    track: str = _default(settings.TRACK),
-    soil: str = _default(settings.SOIL),
-    model: str = _default(settings.MODEL),
-    rate_hz: float = _default(settings.RATE),
-    dt: float = _default(settings.DT),
-    n_sleepers: int = _default(settings.N_SLEEPERS),
-    irregularity: str = _default(settings.IRREGULARITY),
-    seed: int = _default(settings.SEED),
-    closed_loop: bool = _default(settings.CLOSED_LOOP),
-    storage: str = _default(settings.STORAGE),
-    domain_id: int = _default(settings.DOMAIN_ID),
+    vehicle: str = setting_default(settings.VEHICLE),
+    speed: float = setting_default(settings.SPEED),
+    duration: float = setting_default(settings.DURATION),
+    track: str = setting_default(settings.TRACK),
+    soil: str = setting_default(settings.SOIL),
+    model: str = setting_default(settings.MODEL),
+    rate_hz: float = setting_default(settings.RATE),
+    dt: float = setting_default(settings.DT),
+    n_sleepers: int = setting_default(settings.N_SLEEPERS),
+    irregularity: str = setting_default(settings.IRREGULARITY),
+    seed: int = setting_default(settings.SEED),
+    closed_loop: bool = setting_default(settings.CLOSED_LOOP),
+    storage: str = setting_default(settings.STORAGE),
+    domain_id: int = setting_default(settings.DOMAIN_ID),
     hold_domain: bool = True,
     timeout: float = 300.0,
     overwrite: bool = False,

@@ -27,6 +27,8 @@ seed : irregularity seed of pair 0 (pair i: seed + i); empty (the default):
 runs : trains run one after another by each vehicle (default 1).
 """
 
+from typing import Any
+
 from clm_ros import launch_common as common
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
@@ -40,7 +42,7 @@ VEHICLE = {"vehicle": str, "speed": float, "duration": float}
 class _PairContext:
     """The launch context as pair ``i`` sees it: its namespace ``<namespace>/train_i``."""
 
-    def __init__(self, context, ns):  # type: ignore[no-untyped-def]
+    def __init__(self, context: Any, ns: str) -> None:
         self.launch_configurations = {**context.launch_configurations, "namespace": ns}
 
 
