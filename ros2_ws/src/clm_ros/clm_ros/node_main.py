@@ -110,7 +110,6 @@ class StopSignals:
         self.event = threading.Event()
         self.signum: int | None = None
         self.count = 0
-        self.t_signal = 0.0
         self._interrupt = True
         self._previous: dict[int, Any] = {}
 
@@ -130,7 +129,7 @@ class StopSignals:
 
     def _handler(self, signum: int, frame: FrameType | None) -> None:
         if self.signum is None:
-            self.signum, self.t_signal = signum, time.monotonic()
+            self.signum = signum
         self.count += 1
         self.event.set()
         if self._interrupt:
