@@ -75,20 +75,8 @@ def ros_domain_id() -> Iterator[int]:
 
 
 def make_ros_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
-    """Environment for a ROS process isolated on loopback in ``domain_id``.
-
-    Parameters
-    ----------
-    domain_id : int
-        ``ROS_DOMAIN_ID`` of the process.
-    base : mapping, optional
-        Environment to start from; default ``os.environ``.
-
-    Returns
-    -------
-    dict
-        A new environment dictionary.
-    """
+    """:func:`clm_ros.processes.ros_env` (isolated on loopback in ``domain_id``) with the ``clm_ros`` sources on
+    ``PYTHONPATH``."""
     return processes.ros_env(domain_id, base, pythonpath=[str(CLM_ROS_SRC)])
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from msgcheck import same_arrays, same_wheel_loads
 from rosbags.highlevel import AnyReader
 
 from clm_core.io.bags import BagWriter
@@ -77,33 +78,6 @@ def _write_bag(path: Path, storage: str) -> tuple[Any, list[tuple[Any, Any]]]:
     return ts, written
 
 
-def _same_wheels(got: Any, want: Any) -> None:
-    assert got.header.stamp.sec == want.header.stamp.sec
-    assert got.header.stamp.nanosec == want.header.stamp.nanosec
-    assert got.header.frame_id == want.header.frame_id
-    assert len(got.wheels) == len(want.wheels)
-    for g, w in zip(got.wheels, want.wheels, strict=True):
-        assert (g.id, g.position, g.force) == (w.id, w.position, w.force)
-        assert (math.isnan(g.speed) and math.isnan(w.speed)) or g.speed == w.speed
-
-
-SLEEPER_FIELDS = (
-    "sleeper_index",
-    "position",
-    "soil_force",
-    "rail_deflection",
-    "sleeper_displacement",
-    "area_displacement",
-)
-
-
-def _same_sleepers(got: Any, want: Any) -> None:
-    assert got.header.stamp.sec == want.header.stamp.sec
-    assert got.header.frame_id == want.header.frame_id
-    for name in SLEEPER_FIELDS:
-        np.testing.assert_array_equal(np.asarray(getattr(got, name)), getattr(want, name), name)
-
-
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_bag_roundtrip_with_embedded_definitions(tmp_path: Path, storage: str) -> None:
     bag = tmp_path / "bag"
@@ -131,14 +105,14 @@ def test_bag_roundtrip_with_embedded_definitions(tmp_path: Path, storage: str) -
 
     assert len(got[WHEELS_TOPIC]) == len(got[SLEEPERS_TOPIC]) == N
     for (wheels, sleepers), g_wheels, g_sleepers in zip(written, got[WHEELS_TOPIC], got[SLEEPERS_TOPIC], strict=True):
-        _same_wheels(g_wheels, wheels)
-        _same_sleepers(g_sleepers, sleepers)
+        same_wheel_loads(g_wheels, wheels)
+        same_arrays(g_sleepers, sleepers)
 
     if HAVE_RCLPY:  # the bag's bytes are what rclpy would have put on the wire
         from clm_msgs.msg import SleeperResponse, WheelLoads
         from rclpy.serialization import deserialize_message
 
         for data, wheels in zip(raw[WHEELS_TOPIC], (w for w, _ in written), strict=True):
-            _same_wheels(deserialize_message(data, WheelLoads), wheels)
+            same_wheel_loads(deserialize_message(data, WheelLoads), wheels)
         for data, sleepers in zip(raw[SLEEPERS_TOPIC], (s for _, s in written), strict=True):
-            _same_sleepers(deserialize_message(data, SleeperResponse), sleepers)
+            same_arrays(deserialize_message(data, SleeperResponse), sleepers)

@@ -42,8 +42,8 @@ import yaml
 
 pytest.importorskip("clm_msgs.action", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-import rclpy
 from action_msgs.msg import GoalStatus
+from clientnode import ClientNode
 from clm_msgs.action import Calibrate as CalibrateAction
 from clm_msgs.srv import Calibrate
 from clm_ros.calibration_goal import goal_options
@@ -52,8 +52,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
 from rclpy.action import ActionClient
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.task import Future
 
 from clm_core.calibration import CalibrationError, calibrate
@@ -92,16 +90,12 @@ class Goal:
         return [f.fraction for _, f in self.feedback]
 
 
-class Client:
+class Client(ClientNode):
     """In-process rclpy client in ``domain_id`` (loopback), driving nodes of other processes."""
 
     def __init__(self, domain_id: int, procs: list[Any]) -> None:
-        self.procs = procs
-        self.ctx = Context()
-        rclpy.init(context=self.ctx, domain_id=domain_id)
-        self.node = rclpy.create_node("clm_test_calibration_client", context=self.ctx)
-        self.exec = SingleThreadedExecutor(context=self.ctx)
-        self.exec.add_node(self.node)
+        super().__init__(domain_id, procs, "clm_test_calibration_client", ok_exits=(-signal.SIGKILL,),
+                         timeout=TIMEOUT, spin_period=0.01)
         self.action = ActionClient(self.node, CalibrateAction, NAME)
         self.srv = self.node.create_client(Calibrate, NAME)
         self.diagnostics: list[tuple[float, DiagnosticStatus]] = []  # of the calibration node
@@ -113,19 +107,6 @@ class Client:
         for st in msg.status:
             mine = st.name.startswith("clm_calibration_node")
             (self.diagnostics if mine else self.others).append((time.monotonic(), st))
-
-    def wait_for(self, cond: Callable[[], bool], what: str, timeout: float = TIMEOUT,
-                 allow_exit: bool = False) -> None:
-        """Spin until ``cond()``; fail early (with its output) if a node process died."""
-        t0 = time.monotonic()
-        while not cond():
-            for p in self.procs:
-                if not allow_exit and p.poll() is not None and p.returncode != -signal.SIGKILL:
-                    out, err = p.communicate()
-                    pytest.fail(f"{p.args[-1]} exited ({p.returncode}) while waiting for {what}\n{out}\n{err}")
-            if time.monotonic() - t0 > timeout:
-                pytest.fail(f"{what} not within {timeout} s")
-            self.exec.spin_once(timeout_sec=0.01)
 
     def ready(self) -> None:
         self.wait_for(lambda: self.action.server_is_ready() and self.srv.service_is_ready(), f"action {NAME}")
@@ -159,8 +140,8 @@ class Client:
         self.wait_for(fut.done, "cancel response")
         return fut.result()
 
-    def call(self, bag: str | Path, method: str = "", options: str = "", push: bool = False,
-             target: str = "") -> Future:
+    def call_service(self, bag: str | Path, method: str = "", options: str = "", push: bool = False,
+                     target: str = "") -> Future:
         req = Calibrate.Request(bag_path=str(bag), method=method, options_yaml=options, push_to_node=push,
                                 target_node=target)
         return self.srv.call_async(req)
@@ -210,9 +191,7 @@ class Client:
 
     def close(self) -> None:
         self.action.destroy()
-        self.exec.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
+        super().close()
 
 
 @pytest.fixture
@@ -322,7 +301,7 @@ def test_cancel_queue_reject_and_service(ros_python, client_factory) -> None:  #
     assert b.handle.status == GoalStatus.STATUS_ACCEPTED
     rejected = c.send(IMPACT_BAG)
     assert not rejected.handle.accepted
-    busy = c.call(IMPACT_BAG, "impact")
+    busy = c.call_service(IMPACT_BAG, "impact")
     c.wait_for(busy.done, "busy answer")
     assert not busy.result().success and busy.result().message.startswith("busy: a calibration is running")
     # cancel B (queued): CANCELED without starting, while A goes on
@@ -349,7 +328,7 @@ def test_cancel_queue_reject_and_service(ros_python, client_factory) -> None:  #
     assert max(a.fractions()) < 1.0
     # the node serves on: a goal and a service call (same queue, same code path, same parameter file)
     d = c.send(IMPACT_BAG, compare=False)
-    srv = c.call(IMPACT_BAG, "impact", "compare: false")
+    srv = c.call_service(IMPACT_BAG, "impact", "compare: false")
     rd = c.result(d)
     c.wait_for(srv.done, "service answer", FIT_TIMEOUT)
     assert rd.status == GoalStatus.STATUS_SUCCEEDED and srv.result().success, srv.result().message
@@ -386,7 +365,7 @@ def test_bad_goals_abort_with_their_reason(ros_python, client_factory, tmp_path)
     os.truncate(mcap, mcap.stat().st_size // 2)
     aborted(bad, "bag refused", "truncated, corrupt")
     # the service, same checks
-    fut = c.call(tmp_path / "no_such_bag", "impact")
+    fut = c.call_service(tmp_path / "no_such_bag", "impact")
     c.wait_for(fut.done, "service answer")
     assert not fut.result().success and "does not exist" in fut.result().message
     assert json.loads(fut.result().metrics_json)["error"] == fut.result().message
@@ -469,7 +448,7 @@ def test_push_refused_reason_propagated(ros_python, client_factory, weak_patch_f
     got = c.get_params("/clm_track_node", SOIL_KEYS)
     assert all(math.isnan(v.double_value) for v in got), [v.double_value for v in got]
     # the service reports the same refusal
-    fut = c.call(IMPACT_BAG, "impact", "compare: false", push=True, target="/clm_track_node")
+    fut = c.call_service(IMPACT_BAG, "impact", "compare: false", push=True, target="/clm_track_node")
     c.wait_for(fut.done, "service answer", FIT_TIMEOUT)
     assert not fut.result().success and "refused the parameters: damping matrix" in fut.result().message
     # an absent target: reported after push_timeout; an empty one at once

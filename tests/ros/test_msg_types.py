@@ -27,6 +27,7 @@ pytest.importorskip(
 from clm_msgs.action import Calibrate as CalibrateAction  # noqa: E402
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse  # noqa: E402
 from clm_msgs.srv import Calibrate  # noqa: E402
+from msgcheck import SLEEPER_FIELDS, WHEEL_RAIL_FIELDS, same_arrays, same_wheel_loads  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 
 from clm_core.io.messages import interface_dir, source_interface_dir, typestore  # noqa: E402
@@ -71,38 +72,6 @@ def _sleeper_response(ts: Any, n: int) -> Any:
     )
 
 
-def _check_wheel_loads(got: Any, want: Any) -> None:
-    assert got.header.stamp.sec == want.header.stamp.sec
-    assert got.header.stamp.nanosec == want.header.stamp.nanosec
-    assert got.header.frame_id == want.header.frame_id
-    assert len(got.wheels) == len(want.wheels)
-    for g, w in zip(got.wheels, want.wheels, strict=True):
-        assert g.id == w.id
-        assert g.position == w.position
-        assert g.force == w.force
-        assert (math.isnan(g.speed) and math.isnan(w.speed)) or g.speed == w.speed
-
-
-def _check_arrays(got: Any, want: Any, fields: tuple[str, ...]) -> None:
-    assert got.header.stamp.sec == want.header.stamp.sec
-    assert got.header.stamp.nanosec == want.header.stamp.nanosec
-    assert got.header.frame_id == want.header.frame_id
-    for name in fields:
-        g = np.asarray(getattr(got, name))
-        w = np.asarray(getattr(want, name))
-        assert g.dtype == w.dtype, name
-        np.testing.assert_array_equal(g, w, err_msg=name)
-
-
-SLEEPER_FIELDS = (
-    "sleeper_index",
-    "position",
-    "soil_force",
-    "rail_deflection",
-    "sleeper_displacement",
-    "area_displacement",
-)
-WHEEL_RAIL_FIELDS = ("wheel_id", "position", "rail_deflection", "rail_velocity")
 
 
 @pytest.mark.parametrize("n", [0, 1, 6])
@@ -111,12 +80,12 @@ def test_wheel_loads_rosbags_to_rclpy_and_back(ts: Any, n: int) -> None:
     raw = bytes(ts.serialize_cdr(msg, "clm_msgs/msg/WheelLoads"))
 
     ros_msg = deserialize_message(raw, WheelLoads)
-    _check_wheel_loads(ros_msg, msg)
+    same_wheel_loads(ros_msg, msg)
 
     # rclpy -> rosbags. Fast CDR leaves alignment padding uninitialised, so
     # compare decoded fields, not bytes.
     back = ts.deserialize_cdr(serialize_message(ros_msg), "clm_msgs/msg/WheelLoads")
-    _check_wheel_loads(back, msg)
+    same_wheel_loads(back, msg)
 
 
 @pytest.mark.parametrize("n", [1, 5, 200])
@@ -125,11 +94,11 @@ def test_sleeper_response_rosbags_to_rclpy_and_back(ts: Any, n: int) -> None:
     raw = bytes(ts.serialize_cdr(msg, "clm_msgs/msg/SleeperResponse"))
 
     ros_msg = deserialize_message(raw, SleeperResponse)
-    _check_arrays(ros_msg, msg, SLEEPER_FIELDS)
+    same_arrays(ros_msg, msg, SLEEPER_FIELDS)
     assert list(ros_msg.sleeper_index) == [int(x) for x in msg.sleeper_index]
 
     back = ts.deserialize_cdr(serialize_message(ros_msg), "clm_msgs/msg/SleeperResponse")
-    _check_arrays(back, msg, SLEEPER_FIELDS)
+    same_arrays(back, msg, SLEEPER_FIELDS)
 
 
 def test_wheel_rail_response_rclpy_to_rosbags_and_back(ts: Any) -> None:
@@ -143,10 +112,10 @@ def test_wheel_rail_response_rclpy_to_rosbags_and_back(ts: Any) -> None:
 
     msg = ts.deserialize_cdr(serialize_message(ros_msg), "clm_msgs/msg/WheelRailResponse")
     assert msg.wheel_id.dtype == np.uint32
-    _check_arrays(msg, ros_msg, WHEEL_RAIL_FIELDS)
+    same_arrays(msg, ros_msg, WHEEL_RAIL_FIELDS)
 
     again = deserialize_message(bytes(ts.serialize_cdr(msg, "clm_msgs/msg/WheelRailResponse")), WheelRailResponse)
-    _check_arrays(again, ros_msg, WHEEL_RAIL_FIELDS)
+    same_arrays(again, ros_msg, WHEEL_RAIL_FIELDS)
 
 
 def test_calibrate_service_parts(ts: Any) -> None:

@@ -41,9 +41,8 @@ import shutil
 import stat
 import subprocess
 import sys
-import time
 import types
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -392,55 +391,31 @@ def test_foxglove_layout_of_the_demo() -> None:
 # ---------------------------------------------------------------------------------------------- nodes + demo.yaml
 
 try:
-    import rclpy
+    from clientnode import ClientNode
     from clm_msgs.msg import WheelLoads
     from diagnostic_msgs.msg import DiagnosticArray
     from lifecycle_msgs.srv import GetState
     from rcl_interfaces.srv import GetParameters
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     HAVE_ROS = True
 except ImportError:  # the launch-file and packaging checks above and below still run
     HAVE_ROS = False
+    ClientNode = object  # type: ignore[misc,assignment]  # Client serves only tests marked needs_ros
 
 needs_ros = pytest.mark.skipif(not HAVE_ROS, reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 #: rcl_interfaces/ParameterType -> field of ParameterValue
 _VALUE_FIELD = {1: "bool_value", 2: "integer_value", 3: "double_value", 4: "string_value"}
 
 
-class Client:
-    """In-process rclpy node in the test's domain, reading the nodes of other processes."""
+class Client(ClientNode):
+    """In-process rclpy node in the test's domain, reading the nodes of other processes (exit 0 is fine)."""
 
     def __init__(self, domain_id: int, procs: list[subprocess.Popen[str]]) -> None:
-        self.procs = procs
-        self.ctx = Context()
-        rclpy.init(context=self.ctx, domain_id=domain_id)
-        self.node = rclpy.create_node("clm_test_packaging_client", context=self.ctx)
-        self.exec = SingleThreadedExecutor(context=self.ctx)
-        self.exec.add_node(self.node)
+        super().__init__(domain_id, procs, "clm_test_packaging_client", ok_exits=(0,), timeout=TIMEOUT)
 
-    def wait_for(self, cond: Callable[[], bool], what: str, timeout: float = TIMEOUT) -> None:
-        t0 = time.monotonic()
-        while not cond():
-            for p in self.procs:
-                if p.poll() is not None and p.returncode != 0:
-                    out, _ = p.communicate()
-                    pytest.fail(f"{p.args} exited with {p.returncode} while waiting for {what}\n{out}")
-            if time.monotonic() - t0 > timeout:
-                pytest.fail(f"{what} not within {timeout} s")
-            self.exec.spin_once(timeout_sec=0.02)
-
-    def call(self, srv_type: Any, name: str, request: Any, timeout: float = START_TIMEOUT) -> Any:
-        cli = self.node.create_client(srv_type, name)
-        try:
-            self.wait_for(cli.service_is_ready, f"service {name}", timeout)
-            fut = cli.call_async(request)
-            self.wait_for(fut.done, f"answer of {name}")
-            return fut.result()
-        finally:
-            self.node.destroy_client(cli)
+    def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = START_TIMEOUT) -> Any:
+        return super().call(srv_type, name, request, timeout)
 
     def parameters(self, node: str, names: list[str]) -> dict[str, Any]:
         """Values of ``names`` on ``node``; None for a parameter the node does not declare."""
@@ -449,11 +424,6 @@ class Client:
         for name, v in zip(names, res.values):
             out[name] = getattr(v, _VALUE_FIELD[v.type]) if v.type in _VALUE_FIELD else None
         return out
-
-    def close(self) -> None:
-        self.exec.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
 
 
 def _start(module: str, ros_env: dict[str, str], tmp_path: Path, *ros_args: str) -> subprocess.Popen[str]:

@@ -19,7 +19,7 @@ import struct
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -27,12 +27,11 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-import rclpy
+from clientnode import ClientNode
 from clm_msgs.msg import SleeperResponse, WheelLoads
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
-from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -49,17 +48,13 @@ def stamp(raw: bytes) -> int:
     return int(sec) * NS + int(nsec)
 
 
-class Watcher:
+class Watcher(ClientNode):
     """An in-process client in the test's domain: wheel loads, answers and the vehicle's /diagnostics."""
 
     def __init__(self, domain_id: int, procs: list[subprocess.Popen[str]], ns: str = "") -> None:
-        self.procs = procs
+        # EventsExecutor: ~3k callbacks/s, keeps up with loads and answers
+        super().__init__(domain_id, procs, "clm_test_vehicle_watcher", executor=EventsExecutor, timeout=START)
         self.ns = ns
-        self.ctx = Context()
-        rclpy.init(context=self.ctx, domain_id=domain_id)
-        self.node = rclpy.create_node("clm_test_vehicle_watcher", context=self.ctx)
-        self.exec = EventsExecutor(context=self.ctx)  # ~3k callbacks/s: keeps up with loads and answers
-        self.exec.add_node(self.node)
         self.loads: list[int] = []
         self.answers: list[int] = []
         self.diag: list[tuple[int, str, dict[str, str]]] = []  # (level, message, values) of the vehicle
@@ -82,27 +77,9 @@ class Watcher:
     def last(self) -> dict[str, str]:
         return self.diag[-1][2] if self.diag else {}
 
-    def wait_for(self, cond: Callable[[], bool], what: str, timeout: float = START, allow_exit: bool = False) -> None:
-        t0 = time.monotonic()
-        while not cond():
-            for p in self.procs:
-                if not allow_exit and not getattr(p, "expected_exit", False) and p.poll() is not None:
-                    out = p.communicate()[0]
-                    pytest.fail(f"{p.args} exited with {p.returncode} while waiting for {what}\n{out}")
-            if time.monotonic() - t0 > timeout:
-                pytest.fail(f"{what}: not within {timeout} s ({len(self.loads)} loads, {len(self.answers)} answers "
-                            f"seen); vehicle diagnostics {self.diag[-1:]}")
-            self.exec.spin_once(timeout_sec=0.02)
-
-    def call(self, srv: Any, name: str, req: Any) -> Any:
-        cli = self.node.create_client(srv, name)
-        try:
-            self.wait_for(cli.service_is_ready, f"service {name}")
-            fut = cli.call_async(req)
-            self.wait_for(fut.done, f"answer of {name}")
-            return fut.result()
-        finally:
-            self.node.destroy_client(cli)
+    def progress_note(self) -> str:
+        return (f"({len(self.loads)} loads, {len(self.answers)} answers seen); vehicle diagnostics "
+                f"{self.diag[-1:]}")
 
     def state(self, node: str) -> str:
         return str(self.call(GetState, f"{node}/get_state", GetState.Request()).current_state.label)
@@ -110,11 +87,6 @@ class Watcher:
     def transition(self, node: str, tid: int) -> bool:
         return bool(self.call(ChangeState, f"{node}/change_state",
                               ChangeState.Request(transition=Transition(id=tid))).success)
-
-    def close(self) -> None:
-        self.exec.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
 
 
 def start(module: str, env: dict[str, str], cwd: Path, *args: str) -> subprocess.Popen[str]:

@@ -90,27 +90,23 @@ fmax: 140.0}"``.
 
 from __future__ import annotations
 
-import os
 import queue
-import signal
 import sys
 import threading
 import time
 import traceback
 from collections import Counter, deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import rclpy
 from clm_msgs.action import Calibrate as CalibrateAction
 from clm_msgs.srv import Calibrate
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
-from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from clm_core.calibration import BagError, CalibrationError, calibrate
@@ -138,6 +134,8 @@ from clm_ros.calibration_push import (
     push_values,
     target_service,
 )
+from clm_ros.diagnostics import publish_status
+from clm_ros.node_main import StopSignals, run_node
 from clm_ros.parameters import declare_settings
 
 __all__ = ["CalibrationNode", "PushOutcome", "main", "parameter_messages", "push_values", "target_service"]
@@ -189,6 +187,8 @@ class CalibrationNode(Node):
 
     Parameters
     ----------
+    signals : StopSignals, optional
+        The process's SIGINT/SIGTERM (:func:`clm_ros.node_main.run_node`), named in the shutdown's log.
     **kwargs
         Passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
 
@@ -198,8 +198,9 @@ class CalibrationNode(Node):
         ``default_method`` is not a method.
     """
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, signals: StopSignals | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        self._signals = signals  # the process's SIGINT/SIGTERM (clm_ros.node_main), for the shutdown's log
         declare_settings(self, (DEFAULT_METHOD, MAX_QUEUED, "push_timeout", "diagnostics_period"))
         method = str(self.get_parameter("default_method").value)
         DEFAULT_METHOD.check(method)  # the values at start (later changes are checked by declare_settings)
@@ -526,15 +527,7 @@ class CalibrationNode(Node):
             level = DiagnosticStatus.WARN
             if values["state"] == "idle":
                 message = f"idle; last calibration {last[:200]}"
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: calibration", message=message,
-                                  hardware_id="clm_core",
-                                  values=[KeyValue(key=k, value=v[:500]) for k, v in values.items()])
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        try:
-            self._pub_diag.publish(arr)
-        except Exception as exc:  # context shutting down: diagnostics are best effort
-            self.get_logger().debug(f"diagnostics not published: {exc}")
+        publish_status(self, self._pub_diag, f"{self.get_name()}: calibration", level, message, values)
 
     # ------------------------------------------------------------------ shutdown
 
@@ -564,22 +557,33 @@ class CalibrationNode(Node):
                                        f"{SHUTDOWN_GRACE:g} s ('{run.stage}')", run.request))
         self._inbox.put(None)
 
-    def fit_abandoned(self) -> bool:
-        """True if a fit was abandoned at shutdown and its thread still runs."""
+    def abandoned(self) -> bool:
+        """True if a fit was abandoned at shutdown and its thread still runs (the fit's thread cannot be
+        interrupted and would slow the interpreter's teardown down, holding the GIL for much of its work: the
+        process ends at once, :func:`clm_ros.node_main.run_node`)."""
         return self._worker.is_alive() and self._stop.is_set()
+
+    def drain(self, spin_until: Callable[[Callable[[], bool], float], None]) -> None:
+        """After SIGINT/SIGTERM (:func:`clm_ros.node_main.run_node`): abort what waits, give the running fit
+        :data:`SHUTDOWN_GRACE` s to stop, then :data:`FLUSH_S` s for the results to reach the clients
+        (``spin_until`` returns early at a second signal)."""
+        t_signal = time.monotonic()
+        name = self._signals.name if self._signals is not None else "signal"
+        self.get_logger().info(f"{name}: shutting down")
+        self.begin_shutdown()
+        busy = not self.idle()
+        spin_until(self.idle, SHUTDOWN_GRACE)
+        self.abandon()
+        if busy:  # let the results of what was running or waiting reach the clients
+            spin_until(lambda: False, FLUSH_S)
+        self.get_logger().info(f"{name}: node stopped {time.monotonic() - t_signal:.3f} s after the signal")
 
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node."""
         self._stop.set()
         self._inbox.put(None)
         self.action_server.destroy()
-        super().destroy_node()
-
-
-def _spin_until(executor: SingleThreadedExecutor, done: Any, timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while not done() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
+        super().destroy_node()  # type: ignore[no-untyped-call]  # rclpy leaves Node.destroy_node unannotated
 
 
 def main(args: list[str] | None = None) -> int:
@@ -596,57 +600,12 @@ def main(args: list[str] | None = None) -> int:
         0 (also after SIGINT or SIGTERM, within 2 s even mid-fit), or 2 for
         an invalid parameter at start (e.g. ``default_method``). After a
         signal that found a fit in a stage longer than
-        :data:`SHUTDOWN_GRACE`, the process ends here with ``os._exit(0)``
-        once ROS is shut down (the fit's thread cannot be interrupted).
+        :data:`SHUTDOWN_GRACE`, the process ends with ``os._exit(0)`` once
+        ROS is shut down (the fit's thread cannot be interrupted; see
+        :meth:`CalibrationNode.abandoned`).
     """
-    signals: list[int] = []
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        signals.append(signum)
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node: CalibrationNode | None = None
-    executor: SingleThreadedExecutor | None = None
-    try:
-        try:
-            node = CalibrationNode()
-        except (ValueError, ClmError, InvalidParameterValueException) as exc:  # bad default_method, range
-            print(f"{NODE_NAME}: {one_line(str(exc))}", file=sys.stderr)
-            return 2
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not signals and rclpy.ok():
-            try:
-                executor.spin_once(timeout_sec=0.1)
-            except Exception:  # a callback's error: log it, keep serving
-                node.get_logger().error(traceback.format_exc())
-        if signals:
-            t_signal = time.monotonic()
-            name = signal.Signals(signals[0]).name
-            node.get_logger().info(f"{name}: shutting down")
-            node.begin_shutdown()
-            busy = not node.idle()
-            _spin_until(executor, lambda: node.idle() or len(signals) > 1, SHUTDOWN_GRACE)
-            node.abandon()
-            if busy:  # let the results of what was running or waiting reach the clients
-                _spin_until(executor, lambda: len(signals) > 1, FLUSH_S)
-            node.get_logger().info(f"{name}: node stopped {time.monotonic() - t_signal:.3f} s after the signal")
-    finally:
-        if executor is not None:
-            executor.shutdown(timeout_sec=0.5)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        for s, h in previous.items():
-            signal.signal(s, h)
-    if node is not None and node.fit_abandoned():
-        # the fit thread cannot be interrupted and would slow the interpreter's teardown down (it holds the GIL
-        # for much of its work): everything ROS is shut down, so end the process here
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(0)
-    return 0
+    # SingleThreadedExecutor: the action server's goal handles are served from its spin_once
+    return run_node(CalibrationNode, args, NODE_NAME, executor_type=SingleThreadedExecutor)
 
 
 if __name__ == "__main__":

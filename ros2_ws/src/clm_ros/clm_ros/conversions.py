@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from clm_core.io.messages import sleeper_fields, wheel_fields
+from clm_core.io.messages import encode_wheel_loads, sleeper_fields, wheel_fields
 from clm_core.io.timebase import ns_to_stamp
 from clm_core.online import ResponseFrame
 
@@ -31,28 +31,22 @@ def rclpy_header(t_ns: int, frame_id: str) -> Any:
     return Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
 
 
-def rclpy_wheel_loads(
-    t_ns: int,
-    ids: ArrayLike,
-    positions: ArrayLike,
-    forces: ArrayLike,
-    speeds: ArrayLike | None = None,
-    frame_id: str = "track",
-) -> Any:
-    """A ``clm_msgs/WheelLoads`` (rclpy): ids, positions [m], forces [N] (downwards), speeds [m/s] (default NaN)."""
-    from clm_msgs.msg import WheelLoad, WheelLoads
+def rclpy_wheel_loads(t_ns: int, ids: ArrayLike, positions: ArrayLike, forces: ArrayLike,
+                      speeds: ArrayLike | None = None, frame_id: str = "track") -> Any:
+    """A ``clm_msgs/WheelLoads`` (rclpy): ids, positions [m], forces [N] (downwards), speeds [m/s] (default NaN).
 
-    i = np.asarray(ids).ravel().tolist()
-    p = np.asarray(positions, dtype=float).ravel().tolist()
-    f = np.asarray(forces, dtype=float).ravel().tolist()
-    v = [float("nan")] * len(i) if speeds is None else np.asarray(speeds, dtype=float).ravel().tolist()
-    return WheelLoads(
-        header=rclpy_header(t_ns, frame_id),
-        wheels=[
-            WheelLoad(id=int(a), position=float(b), force=float(c), speed=float(d))
-            for a, b, c, d in zip(i, p, f, v)
-        ],
-    )
+    Serialized by the core's codec (:func:`clm_core.io.messages.encode_wheel_loads`: its checks, one wheel
+    per entry) and read back as the rclpy class.
+
+    Raises
+    ------
+    clm_core.io.errors.MessageError
+        Arrays of different lengths, ids outside uint32, a stamp outside int32 seconds.
+    """
+    from clm_msgs.msg import WheelLoads
+    from rclpy.serialization import deserialize_message
+
+    return deserialize_message(encode_wheel_loads(t_ns, frame_id, ids, positions, forces, speeds), WheelLoads)
 
 
 _TYPECODE = {np.dtype(np.float64): "d", np.dtype(np.int64): "q", np.dtype(np.uint32): "I"}

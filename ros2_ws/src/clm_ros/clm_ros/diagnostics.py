@@ -1,4 +1,5 @@
-"""Diagnostics of the track node: monotonic counters, answer lag on the stamps' clock, a publishing thread.
+"""Diagnostics of the nodes: the /diagnostics message of all three (:func:`diagnostic_array`); the track node's
+counters, answer lag on the stamps' clock and publishing thread.
 
 Three pieces, independent of the node class so that they can be tested and
 reused:
@@ -27,12 +28,14 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rclpy.publisher import Publisher
 
 from clm_core.online import OnlineStats
 
@@ -213,7 +216,9 @@ def lag_values(lag: LagSummary) -> dict[str, Any]:
     if not lag.available:
         text = f"unavailable: {lag.reason}"
         return {"lag_median_s": text, "lag_p99_s": text, "lag_max_s": text, "waiting": lag.waiting}
-    fmt = lambda x: "nan" if np.isnan(x) else f"{x:.6f}"  # noqa: E731
+    def fmt(x: float) -> str:
+        return "nan" if np.isnan(x) else f"{x:.6f}"
+
     return {
         "answers_in_period": lag.answers,
         "lag_median_s": fmt(lag.median),
@@ -225,15 +230,43 @@ def lag_values(lag: LagSummary) -> dict[str, Any]:
     }
 
 
-def diagnostic_array(name: str, level: int, message: str, values: dict[str, Any], stamp: Any) -> DiagnosticArray:
-    """A ``DiagnosticArray`` with one status (values as strings)."""
+#: Longest value of a diagnostics key-value [characters] (a one-line outcome, an error message).
+VALUE_LIMIT = 500
+
+
+def diagnostic_array(name: str, level: int, message: str, values: Mapping[str, Any], stamp: Any) -> DiagnosticArray:
+    """A ``DiagnosticArray`` with one status (the ``/diagnostics`` message of every clm node).
+
+    Parameters
+    ----------
+    name : str
+        Status name, ``<node name>: <what>``.
+    level : int
+        ``DiagnosticStatus`` level (:data:`OK`, :data:`WARN`, :data:`ERROR`).
+    message : str
+        One-line summary.
+    values : mapping
+        Key-values; each value as ``str(v)``, cut to :data:`VALUE_LIMIT` characters.
+    stamp : builtin_interfaces.msg.Time
+        Header stamp (the node's clock).
+    """
     status = DiagnosticStatus(
         level=level, name=name, message=message, hardware_id="clm_core",
-        values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
+        values=[KeyValue(key=k, value=str(v)[:VALUE_LIMIT]) for k, v in values.items()],
     )
     arr = DiagnosticArray(status=[status])
     arr.header.stamp = stamp
     return arr
+
+
+def publish_status(node: Node, publisher: Publisher, name: str, level: int, message: str,
+                   values: Mapping[str, Any]) -> None:
+    """Publish :func:`diagnostic_array` on ``publisher``, stamped now on ``node``'s clock; best effort: a failure
+    (the context is going down) is logged at debug level."""
+    try:
+        publisher.publish(diagnostic_array(name, level, message, values, node.get_clock().now().to_msg()))
+    except Exception as exc:  # context shutting down: diagnostics are best effort
+        node.get_logger().debug(f"diagnostics not published: {exc}")
 
 
 class DiagnosticsThread:

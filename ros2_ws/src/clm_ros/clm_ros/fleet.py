@@ -51,14 +51,14 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from clm_core import settings
 from clm_core.io.history import write_json
 from clm_ros.errors import ClmRosError
-from clm_ros.launcher import POLL, _number, _stop
+from clm_ros.launcher import POLL, _number, _stop, setting_default
 from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env
 
 #: Namespace of pair ``i``: ``/train_i``.
@@ -134,20 +134,20 @@ def run_fleet(
     out_dir: str | Path = "results/fleet",
     trains: int = 2,
     first_index: int = 0,
-    vehicle: str = settings.VEHICLE.default,
-    speed: float = settings.SPEED.default,
-    duration: float = settings.DURATION.default,
-    track: str = settings.TRACK.default,
-    soil: str = settings.SOIL.default,
-    model: str = settings.MODEL.default,
-    rate_hz: float = settings.RATE.default,
-    dt: float = settings.DT.default,
-    n_sleepers: int = settings.N_SLEEPERS.default,
-    irregularity: str = settings.IRREGULARITY.default,
-    seed: int = settings.SEED.default,
-    closed_loop: bool = settings.CLOSED_LOOP.default,
-    storage: str = settings.STORAGE.default,
-    domain_id: int = settings.DOMAIN_ID.default,
+    vehicle: str = setting_default(settings.VEHICLE),
+    speed: float = setting_default(settings.SPEED),
+    duration: float = setting_default(settings.DURATION),
+    track: str = setting_default(settings.TRACK),
+    soil: str = setting_default(settings.SOIL),
+    model: str = setting_default(settings.MODEL),
+    rate_hz: float = setting_default(settings.RATE),
+    dt: float = setting_default(settings.DT),
+    n_sleepers: int = setting_default(settings.N_SLEEPERS),
+    irregularity: str = setting_default(settings.IRREGULARITY),
+    seed: int = setting_default(settings.SEED),
+    closed_loop: bool = setting_default(settings.CLOSED_LOOP),
+    storage: str = setting_default(settings.STORAGE),
+    domain_id: int = setting_default(settings.DOMAIN_ID),
     hold_domain: bool = True,
     record: bool = True,
     verify: bool = True,
@@ -427,10 +427,12 @@ def _offline_check(bag: Path, ns: str, track: str, soil: str, model: str, dt: fl
     """Replay pair ``ns``'s recorded wheel loads offline; compare its recorded answers with the replay's."""
     from clm_core.io.bags import BagReader
     from clm_core.online import OnlineTrackModel
-    from clm_core.params import load_model
+    from clm_core.params import SOIL_MODELS, SoilModel, load_model
     from clm_ros.replay import replay_bag
 
-    m = OnlineTrackModel(load_model(track, soil, model), dt=dt, n_sleepers=n_sleepers)
+    if model not in SOIL_MODELS:
+        raise ClmRosError(f"model = {model!r}: one of {', '.join(SOIL_MODELS)}")
+    m = OnlineTrackModel(load_model(track, soil, cast(SoilModel, model)), dt=dt, n_sleepers=n_sleepers)
     with tempfile.TemporaryDirectory(prefix="clm_fleet_") as tmp:
         stats = replay_bag(bag, Path(tmp) / "offline", m, topic=f"{ns}/wheel_loads", out_prefix=ns)
 

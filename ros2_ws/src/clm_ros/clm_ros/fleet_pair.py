@@ -4,8 +4,8 @@
 builds the track-soil node (:class:`clm_ros.track_node.TrackNode`) and the
 vehicle simulator node (:class:`clm_ros.vehicle_node.VehicleNode`) in this
 process, both in the namespace given, and serves them with one
-``EventsExecutor``: the vehicle's timetable (its ``service()``, as
-:func:`clm_ros.node_main.run_node` does it) between two turns of the
+``EventsExecutor``: the vehicle's timetable (its ``serve_due()``, by
+:func:`clm_ros.node_main.run_node`) between two turns of the
 executor, which runs the track node's callbacks. The two nodes still talk
 over DDS topics (Fast DDS delivers within the process), so the graph, the
 topics and every answer are those of two separate processes; what is saved is
@@ -23,62 +23,25 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-import rclpy
-from rclpy.experimental import EventsExecutor
-from rclpy.signals import SignalHandlerOptions
-
-from clm_core.errors import ClmError
-from clm_ros.lifetime import StopSignals, publish_synchronously
-from clm_ros.node_main import exit_process, freeze_heap
+from clm_ros.node_main import StopSignals, run_node
 from clm_ros.track_node import TrackNode
 from clm_ros.vehicle_node import VehicleNode
 
-#: Longest wait between two looks at the stop request [s].
-POLL = 0.1
+
+def _make(stop: StopSignals) -> tuple[Any, ...]:
+    """The pair: the track node, then the vehicle node (not built when the track model cannot be configured:
+    the track node's ``exit_code`` 2 ends the process)."""
+    track = TrackNode(stop=stop)
+    if track.exit_code is not None:
+        return (track,)
+    return track, VehicleNode()
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the pair until SIGINT, SIGTERM or the vehicle's ``exit_code``; return the exit code."""
-    stop = StopSignals()
-    stop.install(interrupt=True)  # during start-up a signal interrupts at once
-    track: Any = None
-    vehicle: Any = None
-    executor: Any = None
-    code = 0
-    try:
-        publish_synchronously()
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-        track = TrackNode(stop=stop)
-        if track.model is None and track.get_parameter("autostart").value:
-            return 2
-        vehicle = VehicleNode()
-        freeze_heap()
-        executor = EventsExecutor()
-        executor.add_node(track)
-        executor.add_node(vehicle)
-        stop.install(interrupt=False)
-        while not stop.requested() and rclpy.ok():
-            executor.spin_once(timeout_sec=min(max(vehicle.service(), 0.0), POLL))
-            if vehicle.exit_code is not None:
-                code = int(vehicle.exit_code)
-                break
-    except KeyboardInterrupt:
-        pass
-    except ClmError as exc:
-        print(f"fleet_pair: error: {exc}", file=sys.stderr)
-        code = 2
-    finally:
-        stop.install(interrupt=False)
-        if vehicle is not None:
-            vehicle.stop()
-            vehicle.destroy_node()
-        if track is not None:
-            track.destroy_node()
-        if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
-        rclpy.try_shutdown()
-    return code
+    """Run the pair until SIGINT, SIGTERM or the vehicle's ``exit_code``; return the exit code
+    (:func:`clm_ros.node_main.run_node`: one executor for both nodes, the vehicle's timetable between two turns)."""
+    return run_node(_make, args, "fleet_pair", exit_now=args is None)
 
 
 if __name__ == "__main__":
-    exit_process(main())
+    sys.exit(main())

@@ -61,6 +61,24 @@ def arguments(params_description: str = "ROS parameter file of the nodes") -> li
     return out
 
 
+#: Vehicle settings given as launch arguments of the demo and fleet launches (empty: the parameter file's) and
+#: their types.
+VEHICLE_SETTINGS: dict[str, type] = {"vehicle": str, "speed": float, "duration": float}
+
+
+def vehicle_arguments() -> list[Any]:
+    """``DeclareLaunchArgument`` of each of :data:`VEHICLE_SETTINGS`."""
+    from launch.actions import DeclareLaunchArgument
+
+    return [DeclareLaunchArgument(k, default_value="", description=f"vehicle {k} (empty: the parameter file's)")
+            for k in VEHICLE_SETTINGS]
+
+
+def vehicle_settings(context: Any) -> dict[str, Any]:
+    """The :data:`VEHICLE_SETTINGS` given at launch, typed (those left empty are not in it)."""
+    return {k: t(value(context, k)) for k, t in VEHICLE_SETTINGS.items() if value(context, k)}
+
+
 def value(context: Any, name: str) -> str:
     """The value of launch argument ``name`` in ``context`` (an OpaqueFunction's launch context)."""
     return str(context.launch_configurations[name])

@@ -45,7 +45,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -71,23 +71,32 @@ TOPICS = {
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 
+_V = TypeVar("_V", float, int, str, bool)
+
+
+def setting_default(setting: settings.Setting[_V]) -> _V:
+    """The default of a run setting that has one (not automatic), as its own type."""
+    if setting.default is None:
+        raise ClmRosError(f"setting {setting.name} has no default (automatic: {setting.none_means})")
+    return setting.default
+
 
 def run_demo(
     out_dir: str | Path = "results/demo",
-    vehicle: str = settings.VEHICLE.default,
-    speed: float = settings.SPEED.default,
-    duration: float = settings.DURATION.default,
-    track: str = settings.TRACK.default,
-    soil: str = settings.SOIL.default,
-    model: str = settings.MODEL.default,
-    rate_hz: float = settings.RATE.default,
-    dt: float = settings.DT.default,
-    n_sleepers: int = settings.N_SLEEPERS.default,
-    irregularity: str = settings.IRREGULARITY.default,
-    seed: int = settings.SEED.default,
-    closed_loop: bool = settings.CLOSED_LOOP.default,
-    storage: str = settings.STORAGE.default,
-    domain_id: int = settings.DOMAIN_ID.default,
+    vehicle: str = setting_default(settings.VEHICLE),
+    speed: float = setting_default(settings.SPEED),
+    duration: float = setting_default(settings.DURATION),
+    track: str = setting_default(settings.TRACK),
+    soil: str = setting_default(settings.SOIL),
+    model: str = setting_default(settings.MODEL),
+    rate_hz: float = setting_default(settings.RATE),
+    dt: float = setting_default(settings.DT),
+    n_sleepers: int = setting_default(settings.N_SLEEPERS),
+    irregularity: str = setting_default(settings.IRREGULARITY),
+    seed: int = setting_default(settings.SEED),
+    closed_loop: bool = setting_default(settings.CLOSED_LOOP),
+    storage: str = setting_default(settings.STORAGE),
+    domain_id: int = setting_default(settings.DOMAIN_ID),
     hold_domain: bool = True,
     timeout: float = 300.0,
     overwrite: bool = False,

@@ -1,32 +1,56 @@
-"""The life of a node process: start, spin, and a clean exit on SIGINT or SIGTERM.
+"""The life of a node process: start, spin, and a clean exit on SIGINT or SIGTERM (every clm node's ``main``).
 
-:func:`run_node` is the ``main`` of a node process:
+:func:`run_node` is the ``main`` of the track, vehicle and calibration nodes (and of a fleet's pair: a
+vehicle and a track node on one executor, :mod:`clm_ros.fleet_pair`):
 
-- ``rclpy.init`` without rclpy's own signal handlers (they shut the context
-  down under the feet of a thread that is publishing: an ``RCLError`` or an
-  abort); SIGINT and SIGTERM only set a flag here; Fast DDS publishes
-  synchronously unless ``RMW_FASTRTPS_PUBLICATION_MODE`` says otherwise
-  (:data:`PUBLICATION_MODE`);
+- rclpy's default handling of SIGINT raises ``KeyboardInterrupt`` wherever
+  the main thread happens to be (possibly in a callback that is publishing)
+  and shuts the context down under the feet of a thread that is publishing
+  (an ``RCLError`` or an abort); SIGTERM ends the process at once. Here
+  ``rclpy.init`` runs without rclpy's signal handlers and :class:`StopSignals`
+  takes SIGINT and SIGTERM: while the node is built (its model built and
+  warmed up) a signal interrupts the start-up at once
+  (``KeyboardInterrupt``, nothing is half-done then); once the executor
+  exists (rclpy's EventsExecutor installs handlers of its own when it is
+  created; ours replace them) a signal only sets a flag;
+- Fast DDS publishes synchronously unless ``RMW_FASTRTPS_PUBLICATION_MODE``
+  says otherwise (:data:`PUBLICATION_MODE`);
 - the heap built at start-up frozen out of the garbage collector's reach
   (:func:`freeze_heap`: no 0.1-s collection pause in the middle of a run);
-- an ``EventsExecutor`` spun with ``spin_once`` (its ``spin()`` delivered no
-  callback on the Jazzy wheels; measured in benchmarks/node_lag.py) until the
-  flag is set or the node asks to exit;
-- then, in this order: the node's :meth:`stop` (it stops its own threads;
-  they never outlive it), the executor, the node, the context (the DDS
-  participant leaves the graph, announced to its peers). Exit code 0.
+- an executor (``EventsExecutor`` unless the node needs another: its
+  ``spin()`` delivered no callback on the Jazzy wheels, measured in
+  benchmarks/node_lag.py) spun with ``spin_once`` until the flag is set or
+  the node asks to exit; an exception escaping a callback (a service called
+  with an invalid request, say) is logged (one bounded line) and spinning
+  goes on;
+- after a signal, the node's ``drain`` (if any): it may go on spinning for a
+  grace period to finish or abort what runs; a second signal cuts it short;
+- then, in this order: the node's ``stop`` (it stops its own threads; they
+  never outlive it), the executor, the node, the context (the DDS
+  participant leaves the graph, announced to its peers).
 
-A node used with it may define ``service()`` (called between two turns of
-the executor: it does what is due and returns how long the executor may wait
-for callbacks until its next action [s], so that a node with a timetable,
-such as the vehicle node, needs no thread of its own), ``stop()`` (called
-once, before anything is destroyed) and an ``exit_code`` attribute (None
-while it runs; a number ends the process with that code, e.g. after its
-last train).
+A node used with it may define (all optional; with several nodes, each one's):
+
+``exit_code``
+    None while it runs; a number ends the process with that code (e.g. 2
+    when the model cannot be configured at start, 0 after the last train).
+``serve_due() -> float``
+    Called between two turns of the executor: does what is due and returns
+    how long the executor may wait for callbacks until its next action [s]
+    (a node with a timetable, such as the vehicle node, needs no thread).
+``drain(spin_until) -> None``
+    Called once after a stop signal, before ``stop``; ``spin_until(done,
+    timeout)`` spins until ``done()``, ``timeout`` s or a second signal.
+``stop() -> None``
+    Called once, before anything is destroyed.
+``abandoned() -> bool``
+    True when a thread that cannot be interrupted still runs (the
+    calibration node's fit): the process then ends at once once ROS is
+    shut down (:func:`exit_process`).
 
 The flag is polled every ``poll`` seconds (0.1 s): the exit after a signal
-takes that plus the node's ``stop``, a few ms. :func:`exit_process` then ends
-the process without the interpreter's finalization, which takes 0.3-1.5 s
+takes that plus the node's ``drain`` and ``stop``, a few ms. :func:`exit_process`
+ends the process without the interpreter's finalization, which takes 0.3-1.5 s
 with numba, numpy and scipy loaded on a busy 2-core machine (measured), once
 everything of ROS has been destroyed in order (tests/ros/test_vehicle_node.py
 measures the exit against the 2-s requirement of issue 12).
@@ -39,83 +63,193 @@ import os
 import signal
 import sys
 import threading
+import time
+import traceback
 from collections.abc import Callable, Sequence
 from types import FrameType
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import get_default_context
 
 from clm_core.errors import ClmError
+from clm_ros.diagnostics import bounded
+
+__all__ = ["PUBLICATION_MODE", "START_ERRORS", "StopSignals", "exit_process", "freeze_heap", "run_node"]
 
 #: Fast DDS publication mode of the node processes unless the environment sets one: a synchronous write
 #: sends from the publishing thread; the asynchronous default hands every message to a thread of Fast DDS,
 #: one more thread switch per message: 85-90 against 150-190 us of CPU per message for a 1-kHz raw publisher
-#: with one reliable subscriber on the 2-core machine (load 4-5), measured for issue 10.
+#: with one reliable subscriber on the 2-core machine (load 4-5), measured for issue 10; track node at 1 kHz
+#: (benchmarks/node_lag.py, same sitting): 307-337 against 388-477 us of CPU per message, lag p99 5.7-5.9
+#: against 12.7-26.8 ms.
 PUBLICATION_MODE = "SYNCHRONOUS"
 
+#: Errors of a node's construction that mean an invalid setting: printed as one line, exit code 2.
+START_ERRORS: tuple[type[Exception], ...] = (ClmError, ValueError, InvalidParameterValueException)
 
-def run_node(make: Callable[[], Any], args: Sequence[str] | None = None, name: str = "node",
-             poll: float = 0.1) -> int:
-    """Create the node with ``make()``, spin it until a signal or its ``exit_code``; return the exit code.
+
+class StopSignals:
+    """SIGINT and SIGTERM as a stop request (an event), installed with :meth:`install`.
+
+    Attributes
+    ----------
+    event : threading.Event
+        Set at the first signal.
+    signum : int or None
+        The first signal received.
+    count : int
+        Signals received so far (a second one cuts a node's ``drain`` short).
+    """
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.signum: int | None = None
+        self.count = 0
+        self._interrupt = True
+        self._previous: dict[int, Any] = {}
+
+    def install(self, interrupt: bool) -> None:
+        """(Re-)install the handlers; ``interrupt``: raise ``KeyboardInterrupt`` at once (start-up) or only
+        set the event (spinning)."""
+        self._interrupt = interrupt
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous = signal.signal(sig, self._handler)
+            self._previous.setdefault(sig, previous)
+
+    def restore(self) -> None:
+        """Put back the handlers found at the first :meth:`install`."""
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+
+    def _handler(self, signum: int, frame: FrameType | None) -> None:
+        if self.signum is None:
+            self.signum = signum
+        self.count += 1
+        self.event.set()
+        if self._interrupt:
+            raise KeyboardInterrupt
+
+    def requested(self) -> bool:
+        """Whether a stop was requested."""
+        return self.event.is_set()
+
+    @property
+    def name(self) -> str:
+        """The first signal's name (``SIGTERM``), ``""`` before any."""
+        return signal.Signals(self.signum).name if self.signum is not None else ""
+
+
+def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = None, name: str = "node",
+             poll: float = 0.1, executor_type: Callable[[], Executor] = EventsExecutor,
+             exit_now: bool = False) -> int:
+    """Create the node(s) with ``make(stop)``, spin until a signal or an ``exit_code``; return the exit code.
 
     Parameters
     ----------
     make : callable
-        Builds the node (after ``rclpy.init``). A :class:`clm_core.errors.ClmError`
-        raised here is printed as one line and gives exit code 2.
+        Builds the node, or a tuple of nodes served by one executor (after
+        ``rclpy.init``), given the :class:`StopSignals` (long callbacks may
+        check :meth:`StopSignals.requested`). An error of
+        :data:`START_ERRORS` raised here is printed as one line and gives
+        exit code 2.
     args : sequence of str, optional
         Command line (``--ros-args ...``); default ``sys.argv``.
     name : str
         Program name in error messages.
     poll : float
         Longest wait between two looks at the signal flag [s].
+    executor_type : callable
+        Makes the executor (default ``EventsExecutor``: ~30 % less CPU per
+        message than the ``SingleThreadedExecutor``).
+    exit_now : bool
+        End the process with :func:`exit_process` once ROS is shut down (for
+        a console entry point; also done whenever a node's ``abandoned()``
+        is true).
     """
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop = StopSignals()
+    stop.install(interrupt=True)  # during start-up a signal interrupts at once
     os.environ.setdefault("RMW_FASTRTPS_PUBLICATION_MODE", PUBLICATION_MODE)
-    rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
-    executor = None
+    nodes: tuple[Any, ...] = ()
+    executor: Executor | None = None
     code = 0
     try:
+        rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
         try:
-            node = make()
-        except ClmError as exc:
-            print(f"{name}: error: {exc}", file=sys.stderr)
+            made = make(stop)
+        except START_ERRORS as exc:
+            print(f"{name}: error: {bounded(' '.join(str(exc).split()))}", file=sys.stderr)
             return 2
+        nodes = tuple(made) if isinstance(made, (tuple, list)) else (made,)
         freeze_heap()
-        executor = EventsExecutor()
-        executor.add_node(node)
-        service = getattr(node, "service", None)
-        while not stop.is_set() and rclpy.ok():
-            wait = poll if service is None else min(max(service(), 0.0), poll)
-            executor.spin_once(timeout_sec=wait)
-            exit_code = getattr(node, "exit_code", None)
-            if exit_code is not None:
-                code = int(exit_code)
-                break
+        executor = executor_type()
+        for node in nodes:
+            executor.add_node(node)
+        stop.install(interrupt=False)
+        code = _spin(nodes, executor, stop, poll)
+        if stop.requested():
+            for node in _having(nodes, "drain"):
+                node.drain(lambda done, timeout: _spin_until(executor, lambda: done() or stop.count > 1, timeout))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if node is not None and hasattr(node, "stop"):
+        stop.install(interrupt=False)
+        for node in _having(nodes, "stop"):
             node.stop()
         if executor is not None:
             executor.shutdown(timeout_sec=1.0)
-        if node is not None:
+        for node in reversed(nodes):
             node.destroy_node()
         rclpy.try_shutdown()
         get_default_context().destroy()  # the DDS participant goes now: its peers see it leave
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+        stop.restore()
+    if exit_now or any(node.abandoned() for node in _having(nodes, "abandoned")):
+        exit_process(code)
     return code
+
+
+def _having(nodes: tuple[Any, ...], hook: str) -> list[Any]:
+    """The nodes that define ``hook``."""
+    return [node for node in nodes if hasattr(node, hook)]
+
+
+def _exit_code(nodes: tuple[Any, ...]) -> int | None:
+    """The first ``exit_code`` a node has set, None while every node should run."""
+    for node in nodes:
+        code = getattr(node, "exit_code", None)
+        if code is not None:
+            return int(code)
+    return None
+
+
+def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: float) -> int:
+    """Spin until a signal, the end of the context or a node's ``exit_code``; return the exit code."""
+    serve = [node.serve_due for node in _having(nodes, "serve_due")]
+    while not stop.requested() and rclpy.ok():
+        code = _exit_code(nodes)
+        if code is not None:
+            return code
+        wait = min([poll, *(max(s(), 0.0) for s in serve)])
+        try:
+            executor.spin_once(timeout_sec=wait)
+        except Exception as exc:  # a callback's failure must not end the node
+            if stop.requested() or not rclpy.ok():
+                break
+            tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+            nodes[0].get_logger().error(bounded(f"a callback raised and was skipped: {tb}"))
+    return _exit_code(nodes) or 0
+
+
+def _spin_until(executor: Executor, done: Callable[[], bool], timeout: float) -> None:
+    """Spin ``executor`` until ``done()`` or ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
 
 
 def freeze_heap() -> None:
@@ -134,8 +268,8 @@ def freeze_heap() -> None:
 def exit_process(code: int) -> None:
     """End the process now with ``code``: flush stdout and stderr, skip the interpreter's finalization.
 
-    For a node's console entry point, after :func:`run_node` returned (every
-    ROS entity, the executor and the context are destroyed by then).
+    Called by :func:`run_node` once every ROS entity, the executor and the
+    context are destroyed.
     """
     for stream in (sys.stdout, sys.stderr):
         try:

@@ -54,17 +54,14 @@ import traceback
 from typing import Any
 
 import numpy as np
-import rclpy
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.experimental import EventsExecutor
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.qos import ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from visualization_msgs.msg import MarkerArray
 
 from clm_core.errors import ClmError
@@ -89,7 +86,7 @@ from clm_ros.diagnostics import (
     lag_level,
     lag_values,
 )
-from clm_ros.lifetime import StopSignals, publish_synchronously, spin_until_stopped
+from clm_ros.node_main import StopSignals, run_node
 from clm_ros.parameters import declare_model_parameters, declare_settings
 from clm_ros.track_views import MonitoredSleepers, monitored_indices, window_markers
 
@@ -126,6 +123,8 @@ class TrackNode(LifecycleNode):
         self._guard_change_state()
 
         self._stop = stop or StopSignals()
+        #: None while the process should run; 2: the model could not be configured at start (clm_ros.node_main)
+        self.exit_code: int | None = None
         self.model: OnlineTrackModel | None = None
         self.stats = OnlineStats()  # the model's counters, carried from model to model for the node's life
         self.counters = Counters()
@@ -155,7 +154,7 @@ class TrackNode(LifecycleNode):
         self._cpu_s = 0.0  # CPU time of the executor thread in the data path [s]
         self._rtf = (0, 0.0, 0.0, 0)
         self._rejected_seen = 0
-        self._clock = self.get_clock()
+        self._ros_clock = self.get_clock()  # not self._clock: that is rclpy Node's own attribute
         self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self._lag = LagMonitor(self._now_ns)
         # one /diagnostics publisher for the node's whole life (never one per configure)
@@ -167,6 +166,8 @@ class TrackNode(LifecycleNode):
             self.trigger_configure()
             if self.model is not None:
                 self.trigger_activate()
+            else:
+                self.exit_code = 2
         self._diag.start()
 
     # ------------------------------------------------------------------ helpers
@@ -209,7 +210,7 @@ class TrackNode(LifecycleNode):
         """The clock the stamps are read on [ns]: sim time with use_sim_time (0 until /clock), else system time
         (what ROS time is without sim time, read without the cost of a Time object)."""
         if self._sim_time:
-            return int(self._clock.now().nanoseconds)
+            return int(self._ros_clock.now().nanoseconds)
         return time.time_ns()
 
     # ------------------------------------------------------------------ model from parameters
@@ -642,7 +643,7 @@ class TrackNode(LifecycleNode):
         """Stop the diagnostics thread, then destroy the node."""
         self._diag.stop()
         self._accepting = False
-        super().destroy_node()
+        super().destroy_node()  # type: ignore[no-untyped-call]  # rclpy leaves Node.destroy_node unannotated
 
     def counts(self) -> dict[str, Any]:
         """Every counter of the node's life, as in ``/diagnostics`` (for tests and the launcher)."""
@@ -651,33 +652,8 @@ class TrackNode(LifecycleNode):
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point ``track_node``: exit 0 on SIGINT/SIGTERM (within 2 s, also under load), 2 when the
-    model cannot be configured at start."""
-    stop = StopSignals()
-    stop.install(interrupt=True)  # during start-up a signal interrupts at once
-    node: TrackNode | None = None
-    executor: Any = None
-    try:
-        publish_synchronously()
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-        node = TrackNode(stop=stop)
-        if node.model is None and node.get_parameter("autostart").value:
-            return 2
-        # EventsExecutor: ~30 % less CPU per message than the SingleThreadedExecutor; its constructor installs
-        # its own SIGINT/SIGTERM handlers, replaced by ours right after
-        executor = EventsExecutor()
-        executor.add_node(node)
-        stop.install(interrupt=False)
-        spin_until_stopped(executor, stop, rclpy.ok, node.get_logger().error)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        stop.install(interrupt=False)
-        if node is not None:
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
-        rclpy.try_shutdown()
-    return 0
+    model cannot be configured at start (:func:`clm_ros.node_main.run_node`)."""
+    return run_node(TrackNode, args, NODE_NAME)
 
 
 if __name__ == "__main__":

@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 import rclpy
 from clm_msgs.msg import WheelLoads, WheelRailResponse
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -81,7 +81,8 @@ from clm_core.settings import setting
 from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
 from clm_ros.bag_tools import take_raw
-from clm_ros.node_main import exit_process, freeze_heap, run_node
+from clm_ros.diagnostics import publish_status
+from clm_ros.node_main import freeze_heap, run_node
 from clm_ros.parameters import declare_settings
 
 NODE_NAME = "clm_vehicle_node"
@@ -143,7 +144,7 @@ class Counts:
 class VehicleNode(LifecycleNode):
     """Lifecycle node publishing the wheel loads of clm_core vehicles, one train after another.
 
-    Everything runs in the thread that spins the node: :meth:`service` (called
+    Everything runs in the thread that spins the node: :meth:`serve_due` (called
     by :func:`clm_ros.node_main.run_node` between two turns of the executor)
     takes the answers that have arrived, publishes the message that is due,
     computes the next one and says how long the executor may wait for other
@@ -221,7 +222,7 @@ class VehicleNode(LifecycleNode):
         qos = QoSOverridingOptions.with_default_policies()
         self._pub = self.create_lifecycle_publisher(WheelLoads, "wheel_loads", DATA_QOS, qos_overriding_options=qos)
         self._clock_pub = self.create_lifecycle_publisher(Clock, "/clock", 10) if self.p("publish_clock") else None
-        # the answers are taken by the node itself when it serves the timetable (service), not by the executor: one
+        # the answers are taken by the node itself when it serves the timetable (serve_due), not by the executor: one
         # wake-up per message instead of two; their subscription belongs to a helper node that no executor spins
         self._answers_node = rclpy.create_node(f"{self.get_name()}_answers", namespace=self.get_namespace(),
                                                context=self.context)
@@ -319,7 +320,7 @@ class VehicleNode(LifecycleNode):
 
     # ------------------------------------------------------------------ the schedule
 
-    def service(self) -> float:
+    def serve_due(self) -> float:
         """Do what is due now; return how long the executor may wait for other work until the next action [s]."""
         try:
             self._take_answers()
@@ -606,16 +607,8 @@ class VehicleNode(LifecycleNode):
         if level == DiagnosticStatus.OK and self.closed_loop and published >= 100 and stale > 0.01 * published:
             level = DiagnosticStatus.WARN
             message += f" ({stale} of the last {published} answers too late for the closed loop)"
-        status = DiagnosticStatus(
-            level=level, name=f"{self.get_fully_qualified_name()}: vehicle simulator", message=message,
-            hardware_id="clm_core", values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
-        )
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        try:
-            self._pub_diag.publish(arr)
-        except Exception:  # the context is going down
-            pass
+        publish_status(self, self._pub_diag, f"{self.get_fully_qualified_name()}: vehicle simulator", level, message,
+                       values)
 
 
 def _ignore(_raw: bytes) -> None:
@@ -624,10 +617,8 @@ def _ignore(_raw: bytes) -> None:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Console entry point ``vehicle_node``: run the node until SIGINT, SIGTERM or its last train; exit."""
-    code = run_node(VehicleNode, args, NODE_NAME)
-    if args is None:  # a process of its own (not called from Python code)
-        exit_process(code)
-    return code
+    # exit_now: a process of its own (not called from Python code) skips the interpreter's finalization
+    return run_node(lambda _signals: VehicleNode(), args, NODE_NAME, exit_now=args is None)
 
 
 if __name__ == "__main__":

@@ -42,16 +42,13 @@ from launch.actions import DeclareLaunchArgument, EmitEvent, ExecuteProcess, Opa
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 
-#: Vehicle settings given as launch arguments (empty: the parameter file's) and their types.
-VEHICLE = {"vehicle": str, "speed": float, "duration": float}
-
 
 def nodes(context):  # type: ignore[no-untyped-def]
     record = common.flag(context, "record")
     sim = common.flag(context, "use_sim_time")
     track = common.node(context, "track_node", "clm_track_node",
                         {"monitored_sleepers": common.DEMO_MONITORED_SLEEPERS})
-    own = {k: t(common.value(context, k)) for k, t in VEHICLE.items() if common.value(context, k)}
+    own = common.vehicle_settings(context)
     vehicle = common.node(context, "vehicle_node", "clm_vehicle_node", {
         **own,
         "trains": int(common.value(context, "trains")),
@@ -78,8 +75,7 @@ def nodes(context):  # type: ignore[no-untyped-def]
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
         *common.arguments("ROS parameter file of both nodes"),
-        *[DeclareLaunchArgument(k, default_value="", description=f"vehicle {k} (empty: the parameter file's)")
-          for k in VEHICLE],
+        *common.vehicle_arguments(),
         DeclareLaunchArgument("trains", default_value="1", description="trains before the launch ends"),
         DeclareLaunchArgument("record", default_value="false", description="also run ros2 bag record"),
         DeclareLaunchArgument("bag", default_value="clm_demo_bag", description="output bag of the recorder"),

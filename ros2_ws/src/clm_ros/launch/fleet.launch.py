@@ -27,20 +27,19 @@ seed : irregularity seed of pair 0 (pair i: seed + i); empty (the default):
 runs : trains run one after another by each vehicle (default 1).
 """
 
+from typing import Any
+
 from clm_ros import launch_common as common
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 
-#: Vehicle settings given as launch arguments (empty: the parameter file's) and their types.
-VEHICLE = {"vehicle": str, "speed": float, "duration": float}
-
 
 class _PairContext:
     """The launch context as pair ``i`` sees it: its namespace ``<namespace>/train_i``."""
 
-    def __init__(self, context, ns):  # type: ignore[no-untyped-def]
+    def __init__(self, context: Any, ns: str) -> None:
         self.launch_configurations = {**context.launch_configurations, "namespace": ns}
 
 
@@ -49,7 +48,7 @@ def nodes(context):  # type: ignore[no-untyped-def]
     if trains < 1 or first < 0:
         raise ValueError(f"trains = {trains}, first_index = {first}: need trains >= 1 and first_index >= 0")
     prefix = common.namespace(context)
-    own = {k: t(common.value(context, k)) for k, t in VEHICLE.items() if common.value(context, k)}
+    own = common.vehicle_settings(context)
     out, vehicles, done = [], [], []
     for i in range(first, first + trains):
         pair = _PairContext(context, f"{prefix}/train_{i}")
@@ -79,8 +78,7 @@ def nodes(context):  # type: ignore[no-untyped-def]
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
         *common.arguments("ROS parameter file of every node"),
-        *[DeclareLaunchArgument(k, default_value="", description=f"vehicle {k} (empty: the parameter file's)")
-          for k in VEHICLE],
+        *common.vehicle_arguments(),
         DeclareLaunchArgument("trains", default_value="2", description="vehicle + track node pairs"),
         DeclareLaunchArgument("first_index", default_value="0", description="index of the first pair /train_i"),
         DeclareLaunchArgument("seed", default_value="", description="irregularity seed of pair 0 (pair i: + i); "

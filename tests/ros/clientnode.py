@@ -1,0 +1,108 @@
+"""An in-process rclpy node of the test, in a context of its own, that talks to node processes and watches them.
+
+:class:`ClientNode` is the base of the tests' clients (calibration, vehicle,
+packaging): its own ``Context`` in the test's domain, one executor spun by
+:meth:`ClientNode.wait_for`, which fails early, with the process's output,
+when a watched node process has exited.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import Executor, SingleThreadedExecutor
+
+
+class ClientNode:
+    """rclpy node ``name`` in ``domain_id`` (loopback), spun in the test's thread.
+
+    Parameters
+    ----------
+    domain_id : int
+    procs : list of subprocess.Popen
+        Node processes watched while waiting (the caller may append to the
+        list later). A process may exit without failing the wait when its
+        return code is in ``ok_exits`` or it has ``expected_exit = True``.
+    name : str
+        Node name.
+    executor : callable
+        Executor class (default ``SingleThreadedExecutor``).
+    ok_exits : iterable of int
+        Return codes that are not a failure while waiting.
+    timeout : float
+        Default timeout of :meth:`wait_for` and :meth:`call` [s].
+    spin_period : float
+        ``spin_once`` timeout of :meth:`wait_for` [s].
+    """
+
+    def __init__(self, domain_id: int, procs: list[Any], name: str,
+                 executor: Callable[..., Executor] = SingleThreadedExecutor, ok_exits: Iterable[int] = (),
+                 timeout: float = 60.0, spin_period: float = 0.02) -> None:
+        self.procs = procs
+        self.ok_exits = frozenset(ok_exits)
+        self.timeout = timeout
+        self.spin_period = spin_period
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=domain_id)
+        self.node = rclpy.create_node(name, context=self.ctx)
+        self.exec = executor(context=self.ctx)
+        self.exec.add_node(self.node)
+
+    def progress_note(self) -> str:
+        """What the client has seen so far, added to a timeout's message (override)."""
+        return ""
+
+    def _check_procs(self, what: str) -> None:
+        for p in self.procs:
+            if p.poll() is not None and p.returncode not in self.ok_exits and not getattr(p, "expected_exit", False):
+                out, err = p.communicate()
+                pytest.fail(f"{p.args} exited with {p.returncode} while waiting for {what}\n{out}\n{err or ''}")
+
+    def _outputs(self) -> str:
+        """The output of the watched processes (those still running are killed first: the wait failed)."""
+        text = []
+        for p in self.procs:
+            if p.poll() is None:
+                p.kill()
+            try:
+                out, err = p.communicate(timeout=10)
+            except (ValueError, subprocess.TimeoutExpired):  # already read, or stuck
+                continue
+            text.append(f"\n--- {p.args} (exit {p.returncode}):\n{out}\n{err or ''}")
+        return "".join(text)
+
+    def wait_for(self, cond: Callable[[], Any], what: str, timeout: float | None = None,
+                 allow_exit: bool = False) -> None:
+        """Spin until ``cond()``; fail after ``timeout`` s (default :attr:`timeout`) or, unless ``allow_exit``,
+        when a watched process exits."""
+        timeout = self.timeout if timeout is None else timeout
+        t0 = time.monotonic()
+        while not cond():
+            if not allow_exit:
+                self._check_procs(what)
+            if time.monotonic() - t0 > timeout:
+                pytest.fail(f"{what}: not within {timeout} s {self.progress_note()}".rstrip() + self._outputs())
+            self.exec.spin_once(timeout_sec=self.spin_period)
+
+    def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = None) -> Any:
+        """Call service ``name`` once it is there; the response."""
+        cli = self.node.create_client(srv_type, name)
+        try:
+            self.wait_for(cli.service_is_ready, f"service {name}", timeout)
+            fut = cli.call_async(request)
+            self.wait_for(fut.done, f"answer of {name}", timeout)
+            return fut.result()
+        finally:
+            self.node.destroy_client(cli)
+
+    def close(self) -> None:
+        """Shut the executor, the node and the context down."""
+        self.exec.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.ctx)
