@@ -11,7 +11,7 @@ ros_domain_id : int
     A domain id no other test on this machine is using right now.
 ros_env : dict
     Environment for ROS subprocesses (domain id, LOCALHOST discovery, RMW,
-    unbuffered output, ``clm_ros`` sources on ``PYTHONPATH``).
+    unbuffered output; ``clm_ros`` is installed, editable, by scripts/bootstrap.sh).
 ros_python : RosPython
     Starts python snippets as separate processes with ``ros_env`` and
     kills what is left of them at teardown.
@@ -23,6 +23,7 @@ new_ros_python : callable
 from __future__ import annotations
 
 import contextlib
+import os
 import subprocess
 import sys
 import textwrap
@@ -30,16 +31,22 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import pytest
+from clm_ros import processes
+from clm_ros.errors import ClmRosError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-CLM_ROS_SRC = REPO_ROOT / "ros2_ws" / "src" / "clm_ros"
 
-# clm_ros (pure python) is used from the source tree unless it is installed.
-if str(CLM_ROS_SRC) not in sys.path:
-    sys.path.insert(0, str(CLM_ROS_SRC))
 
-from clm_ros import processes  # noqa: E402
-from clm_ros.errors import ClmRosError  # noqa: E402
+def pytest_configure(config: pytest.Config) -> None:
+    """``CLM_REQUIRE_ROS=1`` (scripts/test.sh, hence CI): a missing ROS environment is an error, not skipped tests."""
+    if os.environ.get("CLM_REQUIRE_ROS") == "1":
+        try:
+            import clm_msgs.msg  # noqa: F401
+            import rclpy  # noqa: F401
+        except ImportError as exc:
+            raise pytest.UsageError(
+                f"CLM_REQUIRE_ROS=1 but the ROS environment is missing ({exc}); run scripts/setup_ros.sh VENV"
+            ) from exc
 
 #: Domain ids handed out to tests (shared allocator with the demo and benchmarks).
 DOMAIN_IDS = processes.DOMAIN_IDS
@@ -75,9 +82,8 @@ def ros_domain_id() -> Iterator[int]:
 
 
 def make_ros_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
-    """:func:`clm_ros.processes.ros_env` (isolated on loopback in ``domain_id``) with the ``clm_ros`` sources on
-    ``PYTHONPATH``."""
-    return processes.ros_env(domain_id, base, pythonpath=[str(CLM_ROS_SRC)])
+    """:func:`clm_ros.processes.ros_env`: isolated on loopback in ``domain_id``."""
+    return processes.ros_env(domain_id, base)
 
 
 @pytest.fixture
