@@ -81,7 +81,9 @@ def test_diagnostics_level_follows_the_lag_budget(ros_python, ros_domain_id) -> 
         _stream_on_ros_time(drv, 200, 0)
         d = drv.latest_diagnostics()
         lag = float(d["lag_median_s"])
-        assert 0 <= lag < 60 and d["_level"] == "0", d  # OK: well within a 60 s budget
+        assert 0 <= lag < 60 and "lag_budget" not in d["_message"], d  # well within a 60 s budget: no WARN
+        # OK, unless the machine is so loaded that some answers came later than max_feedback_delay (ERROR, rightly)
+        assert d["_level"] == "0" or (d["_level"] == "2" and "too late for the closed loop" in d["_message"]), d
         # a budget no real answer can meet: WARN, saying so
         assert drv.set_double("lag_budget", 1e-9).successful
         n0 = len(drv.diagnostics)
