@@ -23,7 +23,7 @@ from matplotlib.legend import Legend
 from matplotlib.transforms import Bbox
 from numpy.typing import NDArray
 
-from clm_core.arrays import Array
+from clm_core.arrays import Array, CArray
 
 #: Called with every figure and its file just before the file is written
 #: (after the layout): the test suite checks every figure it renders this way.
@@ -257,17 +257,8 @@ def figure_legend(fig: Figure, axs: Sequence[Axes]) -> None:
     fig.legend(handles, labels, loc="outside lower center", ncol=min(4, len(labels)), frameon=False)
 
 
-def receptance_lines(
-    amplitude: Axes,
-    phase: Axes,
-    f: Array,
-    H: NDArray[np.complexfloating[Any, Any]],
-    *,
-    db: bool = False,
-    unwrap: bool = False,
-    label: str | None = None,
-    **line: Any,
-) -> None:
+def receptance_lines(amplitude: Axes, phase: Axes, f: Array, H: CArray, *, db: bool = False,
+                     unwrap: bool = False, label: str | None = None, **line: Any) -> None:
     """One receptance H(f) [m/N]: its amplitude on ``amplitude``, its phase [deg] on ``phase``, the same line style.
 
     Parameters
