@@ -46,12 +46,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import decimate, lfilter
 
+from clm_core.arrays import Array
 from clm_core.calibration.channels import ChannelSpec, unit_factor
 from clm_core.calibration.signals import Recording
 from clm_core.params import SoilParams
 from clm_core.soil.chain import chain_matrices
 
-Array = NDArray[np.float64]
 NOISE_MODELS: tuple[str, ...] = ("proportional", "floor", "coloured")
 
 

@@ -30,11 +30,15 @@ def finite(name: str, value: Any, error: type[ClmError] = ParameterError) -> flo
     return v
 
 
-def positive(name: str, value: Any) -> float:
-    """``value`` as a finite float > 0."""
-    v = finite(name, value)
+def positive(name: str, value: Any, error: type[ClmError] = ParameterError, unit: str = "") -> float:
+    """``value`` as a finite float > 0.
+
+    ``error``: as in :func:`finite`; ``unit``: shown after the value in the
+    message (``sample_rate = -5 Hz: must be > 0``).
+    """
+    v = finite(name, value, error)
     if v <= 0.0:
-        raise ParameterError(f"{name} = {v:g}: must be > 0")
+        raise error(f"{name} = {v:g}{' ' + unit if unit else ''}: must be > 0")
     return v
 
 

@@ -17,11 +17,9 @@ from collections.abc import Callable
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.errors import ParameterError
-
-Array = NDArray[np.float64]
 
 
 class NewmarkLinear:

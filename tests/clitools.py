@@ -28,6 +28,13 @@ def run_clm(args: Sequence[str], env: Mapping[str, str] | None = None, timeout: 
                           timeout=timeout, cwd=cwd)
 
 
+def input_error(proc: subprocess.CompletedProcess[str]) -> str:
+    """The message of a ``clm`` run refused as an input error: exit code 2 and one line on stderr (asserted)."""
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1, f"exit {proc.returncode}:\n{proc.stderr}"
+    return lines[0]
+
+
 def run_in_pty(argv: Sequence[str], env: Mapping[str, str] | None = None, timeout: float = 600.0,
                cwd: str | None = None) -> tuple[int, str]:
     """Run ``argv`` with stdin, stdout and stderr on a pseudo-terminal (80 x 24); return (exit code, output)."""

@@ -2,13 +2,12 @@
 
 import csv
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from clm_core.cli import main
+from tests.clitools import input_error, run_clm
 
 HEADER = "frequency_hz,H11_re,H11_im,H21_re,H21_im,H31_re,H31_im,H41_re,H41_im,H51_re,H51_im"
 
@@ -102,9 +101,4 @@ def test_soil_chain_every_preset(tmp_path: Path, soil: str) -> None:
     ],
 )
 def test_clear_errors(tmp_path: Path, argv: list[str], message: str) -> None:
-    proc = subprocess.run(
-        [sys.executable, "-m", "clm_core.cli", *argv, "--out", str(tmp_path)], capture_output=True, text=True
-    )
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and message in lines[0], proc.stderr
+    assert message in input_error(run_clm([*argv, "--out", str(tmp_path)]))

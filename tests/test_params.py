@@ -1,6 +1,7 @@
 """Parameter objects: validation, presets, YAML round trip, overrides."""
 
 import math
+from pathlib import Path
 
 import pytest
 
@@ -101,16 +102,18 @@ def test_yaml_round_trip_with_overrides(tmp_path) -> None:  # type: ignore[no-un
     assert q.track.kb == 50e6 and q.overrides[1].sleepers == (7, 8, 9)
 
 
-def test_bad_parameter_file(tmp_path) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("rail: {E: 1e9}\nsoil: {model: clm, mf: 1, kf: 1e6, df: 1e3, kc: 1e6, dc: 0}\ntrakc: {}\n", "unknown section"),
+        ("overrides: [{kb: 1e6}]\n", "needs 'sleepers"),
+        ("overrides: [{sleepers: [1], kz: 1e6}]\n", "unknown per-sleeper parameter 'kz'"),
+    ],
+)
+def test_bad_parameter_file(tmp_path: Path, text: str, message: str) -> None:
     f = tmp_path / "bad.yaml"
-    f.write_text("rail: {E: 1e9}\nsoil: {model: clm, mf: 1, kf: 1e6, df: 1e3, kc: 1e6, dc: 0}\ntrakc: {}\n")
-    with pytest.raises(ParameterError, match="unknown section"):
-        load_params_file(f)
-    f.write_text("overrides: [{kb: 1e6}]\n")
-    with pytest.raises(ParameterError, match="needs 'sleepers"):
-        load_params_file(f)
-    f.write_text("overrides: [{sleepers: [1], kz: 1e6}]\n")
-    with pytest.raises(ParameterError, match="unknown per-sleeper parameter 'kz'"):
+    f.write_text(text)
+    with pytest.raises(ParameterError, match=message):
         load_params_file(f)
 
 

@@ -22,8 +22,9 @@ channel maps :mod:`clm_core.calibration.channels`); outputs are written by
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from clm_core.lazy import lazy_getattr
 
 if TYPE_CHECKING:
     from clm_core.calibration.api import CalibrationResult, calibrate
@@ -71,11 +72,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+__getattr__ = lazy_getattr(__name__, _LAZY)
 
 
 __all__ = [

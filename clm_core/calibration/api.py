@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.calibration.bagio import WheelLoadRecord, read_bag
 from clm_core.calibration.channels import ChannelMap, find_channel_map, load_channel_map
 from clm_core.calibration.errors import BagError, CalibrationError
@@ -38,7 +39,6 @@ from clm_core.params import ModelParams, SoilParams, load_model, load_params_fil
 from clm_core.soil.chain import chain_response
 from clm_core.track import assemble
 
-Array = NDArray[np.float64]
 Progress = Callable[[str, float], None]
 
 

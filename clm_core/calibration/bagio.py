@@ -34,14 +34,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.calibration.channels import ChannelMap, ChannelSpec
 from clm_core.calibration.errors import BagError, CalibrationError
 from clm_core.calibration.signals import Recording, SamplingRules, Signal, common_grid
 from clm_core.io.bags import BagReader
 from clm_core.io.messages import WHEEL_LOADS
 from clm_core.io.timebase import stamp_ns
-
-Array = NDArray[np.float64]
 
 #: Field read when the channel map gives none, by message type.
 DEFAULT_FIELDS: Mapping[str, str] = {

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Literal, get_args
 
 from clm_core.calibration.errors import CalibrationError
-from clm_core.checks import finite
+from clm_core.checks import positive
 from clm_core.params import read_yaml_mapping
 
 Quantity = Literal["force", "displacement", "velocity", "acceleration"]
@@ -221,9 +221,10 @@ def spec_dict(c: ChannelSpec, with_location: bool) -> dict[str, Any]:
     return d
 
 
-def _finite(where: str, key: str, value: Any) -> float:
-    """``value`` as a finite float (:func:`clm_core.checks.finite`), refused as a channel-map error."""
-    return finite(f"{where}: {key}", value, error=CalibrationError)
+def _optional_positive(entry: Mapping[str, Any], key: str, where: str, unit: str = "") -> float | None:
+    """``entry[key]`` as a finite float > 0 (:func:`clm_core.checks.positive`), or None when absent."""
+    value = entry.get(key)
+    return None if value is None else positive(f"{where}: {key}", value, CalibrationError, unit)
 
 
 def _spec(entry: Any, where: str, kind: Literal["force", "channel"]) -> ChannelSpec:
@@ -276,19 +277,9 @@ def _spec(entry: Any, where: str, kind: Literal["force", "channel"]) -> ChannelS
     sign = entry.get("sign", 1)
     if sign not in (1, -1):
         raise CalibrationError(f"{where}: sign = {sign!r}: must be 1 or -1")
-    full_scale = entry.get("full_scale")
-    fs_si = None
-    if full_scale is not None:
-        fs_v = _finite(where, "full_scale", full_scale)
-        if fs_v <= 0:
-            raise CalibrationError(f"{where}: full_scale = {fs_v:g}: must be > 0")
-        fs_si = fs_v * base
-    rate = entry.get("sample_rate")
-    rate_v = None
-    if rate is not None:
-        rate_v = _finite(where, "sample_rate", rate)
-        if rate_v <= 0:
-            raise CalibrationError(f"{where}: sample_rate = {rate_v:g} Hz: must be > 0")
+    full_scale = _optional_positive(entry, "full_scale", where)
+    fs_si = None if full_scale is None else full_scale * base
+    rate_v = _optional_positive(entry, "sample_rate", where, "Hz")
     stamp = str(entry.get("stamp", "auto"))
     if stamp not in ("auto", "header", "log"):
         raise CalibrationError(f"{where}: stamp = {stamp!r}: must be auto, header or log")

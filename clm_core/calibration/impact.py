@@ -65,6 +65,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array, CArray
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.lsq import FitStats, ParameterEstimate, Sandwich, fit_constrained
 from clm_core.calibration.residuals import (
@@ -83,9 +84,6 @@ from clm_core.errors import ParameterError
 from clm_core.params import SoilParams
 from clm_core.soil.chain import CHAIN_PARAMS, chain_response
 from clm_core.soil.fit import fit_clm_sums, fit_lysmer
-
-Array = NDArray[np.float64]
-CArray = NDArray[np.complex128]
 
 SOIL_FIT_MODELS: tuple[str, ...] = ("clm", "lysmer", "winkler")
 #: First-estimate methods of the CLM fit (:func:`fit_impact`).

@@ -60,10 +60,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.calibration.errors import CalibrationError
 from clm_core.errors import ParameterError
 
-Array = NDArray[np.float64]
 Residual = Callable[[Array], tuple[Array, Array | None]]
 #: J -> (J^T Sigma J, trace Sigma): the residual covariance of the noise, applied to a Jacobian.
 Sandwich = Callable[[Array], tuple[Array, float]]

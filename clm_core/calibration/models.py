@@ -22,12 +22,11 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import CArray
 from clm_core.calibration.errors import CalibrationError
 from clm_core.track import TrackSystem
-
-CArray = NDArray[np.complex128]
 
 
 def track_response(system: TrackSystem, s: ArrayLike, force_dof: int, out_dofs: ArrayLike) -> CArray:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.calibration.bagio import WheelLoadRecord
 from clm_core.calibration.channels import ChannelSpec
 from clm_core.calibration.errors import CalibrationError
@@ -36,8 +37,6 @@ from clm_core.calibration.receptance import UNITS, TrackFit, free_parameters, st
 from clm_core.calibration.signals import Recording
 from clm_core.errors import ParameterError
 from clm_core.params import ModelParams
-
-Array = NDArray[np.float64]
 
 _FIELD = {"rail": "rail_deflection", "sleeper": "sleeper_displacement", "soil": "area_displacement"}
 DEFAULT_PASSBY_FIT: tuple[str, ...] = ("kp", "kb")

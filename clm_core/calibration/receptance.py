@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array, CArray
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.lsq import FitStats, ParameterEstimate, fit_constrained
 from clm_core.calibration.models import track_response
@@ -32,9 +33,6 @@ from clm_core.calibration.spectra import TransferData
 from clm_core.errors import ParameterError
 from clm_core.params import SOIL_USED, ModelParams
 from clm_core.track import TrackSystem, assemble
-
-Array = NDArray[np.float64]
-CArray = NDArray[np.complex128]
 
 TRACK_FIT_NAMES: tuple[str, ...] = ("kp", "dp", "ms", "kb", "db")
 UNITS: Mapping[str, str] = {

@@ -18,11 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array, CArray
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.spectra import TransferData
-
-Array = NDArray[np.float64]
-CArray = NDArray[np.complex128]
 
 NORMS: tuple[str, ...] = ("weighted", "absolute", "relative", "log")
 

@@ -34,10 +34,9 @@ from fractions import Fraction
 import numpy as np
 from numpy.typing import NDArray
 
+from clm_core.arrays import Array
 from clm_core.calibration.channels import ChannelSpec
 from clm_core.calibration.errors import BagError
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -29,14 +29,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from clm_core.arrays import Array, CArray
 from clm_core.calibration.channels import ChannelSpec
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.signals import Recording
-
-Array = NDArray[np.float64]
-CArray = NDArray[np.complex128]
 
 
 @dataclass(frozen=True)

@@ -60,14 +60,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.stats import t as student_t
 
 from clm_core.calibration.lsq import ParameterEstimate
 from clm_core.calibration.spectra import TransferData
-
-Array = NDArray[np.float64]
-CArray = NDArray[np.complex128]
 
 #: Parameter order (the chain's, :data:`clm_core.calibration.models.CHAIN_PARAMS`).
 NAMES: tuple[str, ...] = ("mf", "kf", "df", "kc", "dc")

@@ -1,5 +1,8 @@
 """Arguments and helpers shared by the ``clm`` sub-commands.
 
+- :func:`add_command`: a sub-command's parser from its declaration (name,
+  help line, description, the function that runs it, the run settings it
+  takes); the ROS layer's commands (``clm_ros.commands``) can use it too;
 - :func:`add_model_arguments` / :func:`model_from_args`: the track, soil and
   model options (from the settings schema) and the parameter set they describe;
 - :func:`output_dir`: the one rule for outputs: an existing, non-empty output
@@ -15,13 +18,51 @@ from __future__ import annotations
 
 import argparse
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
-from clm_core.commands._options import add_setting
+from clm_core.commands._options import add_setting, add_settings
 from clm_core.errors import InputError
 from clm_core.params import ModelParams
+
+
+def add_command(
+    sub: Any,
+    name: str,
+    run: Callable[[argparse.Namespace], int],
+    *,
+    help: str,
+    description: str,
+    settings: Iterable[str] = (),
+) -> argparse.ArgumentParser:
+    """Add one sub-command to ``sub`` and return its parser, ready for the command's own options.
+
+    Parameters
+    ----------
+    sub : argparse sub-parsers action
+        What ``add_subparsers`` returned (``register(sub)`` receives it).
+    name : str
+        The sub-command (``clm NAME``).
+    run : callable
+        Runs the parsed arguments and returns the exit code (``args.func``).
+    help : str
+        One line for ``clm --help``.
+    description : str
+        The paragraph of ``clm NAME --help``.
+    settings : iterable of str
+        Run settings (:data:`clm_core.settings.SETTINGS`) whose options come
+        first, with the schema's defaults (:func:`add_settings`).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+    """
+    p: argparse.ArgumentParser = sub.add_parser(name, help=help, description=description)
+    p.set_defaults(func=run)
+    add_settings(p, settings)
+    return p
 
 
 def add_model_arguments(p: argparse.ArgumentParser) -> None:

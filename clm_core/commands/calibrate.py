@@ -26,7 +26,7 @@ from typing import Any
 
 from clm_core.calibration.options import METHODS, CalibrationOptions
 from clm_core.calibration.residuals import NORMS
-from clm_core.commands._common import check_output, output_dir, quantity
+from clm_core.commands._common import add_command, check_output, output_dir, quantity
 from clm_core.commands._options import add_overwrite
 from clm_core.commands.study import add_engine_arguments
 from clm_core.errors import InputError
@@ -34,8 +34,8 @@ from clm_core.errors import InputError
 
 def register(sub: Any) -> None:
     """Add the ``calibrate`` sub-command."""
-    p = sub.add_parser(
-        "calibrate",
+    p = add_command(
+        sub, "calibrate", run,
         help="fit soil/track parameters to a recorded bag (impact, receptance, pass-by)",
         description="Fit model parameters to a rosbag2 bag (mcap or sqlite3): a soil impact test (CLM soil), a "
         "hammer test on the rail (track parameters) or a pass-by (output error through the time-domain engine). "
@@ -67,7 +67,6 @@ def register(sub: Any) -> None:
                    "instead of refusing it")
     g = p.add_argument_group("a folder of bags (dask.distributed, as clm study)")
     add_engine_arguments(g, "bags")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from clm_core.commands._common import add_model_arguments, model_from_args, output_dir
+from clm_core.commands._common import add_command, add_model_arguments, model_from_args, output_dir
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError
 from clm_core.params import ModelParams
@@ -22,8 +22,8 @@ SLEEPERS = 41
 
 def register(sub: Any) -> None:
     """Add the ``receptance`` sub-command."""
-    p = sub.add_parser(
-        "receptance",
+    p = add_command(
+        sub, "receptance", run,
         help="track receptances H11..H51 in the frequency domain",
         description="Rail receptances above sleepers 1..5 for a force above sleeper 1 "
         "(the central sleeper), by direct banded solution.",
@@ -38,7 +38,6 @@ def register(sub: Any) -> None:
     p.add_argument("--df", type=float, default=0.25, help="frequency step [Hz] (default 0.25)")
     p.add_argument("--out", required=True, help="output directory")
     add_overwrite(p)
-    p.set_defaults(func=run)
 
 
 def check_band(fmin: float, fmax: float, df: float, sleepers: int) -> None:

@@ -16,21 +16,21 @@ from __future__ import annotations
 import argparse
 from typing import Any, cast
 
-from clm_core.commands._common import output_dir
+from clm_core.commands._common import add_command, output_dir
 from clm_core.commands._options import add_overwrite
 
 
 def register(sub: Any) -> None:
     """Add the ``report`` sub-command."""
-    p = sub.add_parser(
-        "report", help="frequency-domain report of every track and soil preset",
+    p = add_command(
+        sub, "report", run,
+        help="frequency-domain report of every track and soil preset",
         description="Receptances H11..H51 of every track preset on every soil preset (rigid ground, Lysmer and "
         "CLM soils) and the CLM soil chain of every soil (Eq. 16/18 sums, pulse response, delays), each in its "
         "own directory under --out, with index.json listing the resonance peaks and the delays.",
     )
     p.add_argument("--out", default="results/report", help="output directory (default results/report)")
     add_overwrite(p)
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

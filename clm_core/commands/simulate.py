@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from clm_core.commands._common import (
+    add_command,
     add_model_arguments,
     add_window_arguments,
     model_from_args,
@@ -39,8 +40,9 @@ PASSED_MARGIN_BAYS = 5
 
 def register(sub: Any) -> None:
     """Add the ``simulate`` sub-command."""
-    p = sub.add_parser(
-        "simulate", help="moving wheel loads in the time domain (streaming, moving window)",
+    p = add_command(
+        sub, "simulate", run,
+        help="moving wheel loads in the time domain (streaming, moving window)",
         description="Time-domain response of the track-soil model to moving wheel loads: sleeper soil "
         "forces, rail, sleeper and soil deflections, on a simulated window of sleepers that follows the "
         "wheels (Newmark average acceleration). Constant moving loads by default, a wheel-load time "
@@ -82,7 +84,6 @@ def register(sub: Any) -> None:
     add_setting(g, "lead_in")
     add_setting(g, "hertz")
     add_setting(g, "track_engine")
-    p.set_defaults(func=run)
 
 
 def _floats(text: str, what: str) -> Any:

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from clm_core.commands._common import check_output, output_dir, quantity, remove_bag
+from clm_core.commands._common import add_command, check_output, output_dir, quantity, remove_bag
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError, PresetError
 from clm_core.io.history import write_json
@@ -39,9 +39,9 @@ HELP = "fit CLM soil parameters to a rigorous half-space computation of a soil p
 
 
 def register(subparsers: Any) -> None:
-    """Add the ``soil-calibrate`` sub-command to ``subparsers``."""
-    p = subparsers.add_parser(
-        "soil-calibrate",
+    """Add the ``soil-calibrate`` sub-command (with ``--impact-bag``) to ``subparsers``."""
+    p = add_command(
+        subparsers, "soil-calibrate", run,
         help=HELP,
         description=(
             "Rigorous (Green's function + boundary element) flexibility of 2n+1 rigid contact areas "
@@ -77,7 +77,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     add_overwrite(p)
-    p.set_defaults(func=run)
+    _add_impact_bag_arguments(p)
 
 
 def _check_args(args: argparse.Namespace) -> None:
@@ -118,8 +118,8 @@ def _preset_clm(spec: str) -> dict[str, float] | None:
         return None
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the calibration; returns 0 on success."""
+def _run_calibration(args: argparse.Namespace) -> int:
+    """Run the calibration (without the reference impact bag); returns 0 on success."""
     from clm_core.halfspace.calibrate import calibrate_profile
     from clm_core.profile import load_profile
     from clm_core.progress import Progress
@@ -231,10 +231,7 @@ def _quality_line(label: str, fit: Any) -> str:
 # bag (calibration-bag format) of the rigorous row's response to the Eq. (1)
 # pulse, with ``reference.yaml`` (clm_core.synthetic.reference). It reuses
 # the sweep just written (``sweep.npz``, ``summary.json``): no second BEM run.
-# Added by wrapping ``register`` and ``run``; without the flag nothing changes.
-
-_register_base = register
-_run_base = run
+# Its options are a group of their own; without the flag nothing changes.
 
 #: Sample rate of the reference impact bag [Hz] (that of the calibration bags).
 IMPACT_BAG_FS = 1000.0
@@ -252,10 +249,8 @@ def _snr_arg(text: str) -> float | None:
         raise argparse.ArgumentTypeError(f"{text!r}: give an SNR in dB or 'none'") from None
 
 
-def register(subparsers: Any) -> None:  # type: ignore[no-redef]
-    """Add the ``soil-calibrate`` sub-command (with ``--impact-bag``) to ``subparsers``."""
-    _register_base(subparsers)
-    p = subparsers.choices["soil-calibrate"]
+def _add_impact_bag_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``--impact-bag`` (their own group of ``clm soil-calibrate --help``)."""
     g = p.add_argument_group("reference impact bag (--impact-bag)")
     g.add_argument(
         "--impact-bag",
@@ -267,7 +262,6 @@ def register(subparsers: Any) -> None:  # type: ignore[no-redef]
     add_setting(g, "storage")
     g.add_argument("--bag-snr", type=_snr_arg, default=30.0, help="SNR of the bag's noise [dB] or 'none' (default 30)")
     g.add_argument("--bag-seed", type=int, default=1, help="noise seed (default 1)")
-    p.set_defaults(func=run)
 
 
 def _check_impact_bag(args: argparse.Namespace) -> Path:
@@ -288,15 +282,15 @@ def _check_impact_bag(args: argparse.Namespace) -> Path:
     return bag
 
 
-def run(args: argparse.Namespace) -> int:  # type: ignore[no-redef]
+def run(args: argparse.Namespace) -> int:
     """Run the calibration (and write the reference impact bag with ``--impact-bag``); returns 0 on success."""
     if not getattr(args, "impact_bag", False):
-        return _run_base(args)
+        return _run_calibration(args)
     from clm_core.synthetic.reference import RigorousReference, write_reference_impact_bag
 
     _check_args(args)
     bag_path = _check_impact_bag(args)
-    code = _run_base(args)
+    code = _run_calibration(args)
     if code != 0:
         return code
     out: Path = args.out

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any, cast
 
-from clm_core.commands._common import output_dir, quantity
+from clm_core.commands._common import add_command, output_dir, quantity
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError
 from clm_core.params import SOIL_MODELS, SoilModel, SoilParams
@@ -19,8 +19,8 @@ from clm_core.params import SOIL_MODELS, SoilModel, SoilParams
 
 def register(sub: Any) -> None:
     """Add the ``soil-chain`` sub-command."""
-    p = sub.add_parser(
-        "soil-chain",
+    p = add_command(
+        sub, "soil-chain", run,
         help="the CLM soil chain alone: impedance sums and pulse response",
         description="Chain of 2n+1 contact areas, centre one loaded: the impedances over the "
         "total and alternating sums against Eq. (16)/(18), and the response to the Eq. (1) pulse.",
@@ -42,7 +42,6 @@ def register(sub: Any) -> None:
     p.add_argument("--dt", type=float, default=1e-5, help="time step of the pulse response [s] (default 1e-5)")
     p.add_argument("--out", required=True, help="output directory")
     add_overwrite(p)
-    p.set_defaults(func=run)
 
 
 def soil_from_args(soil: str, model: str, assignments: list[str]) -> SoilParams:

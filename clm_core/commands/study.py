@@ -20,7 +20,7 @@ import argparse
 import sys
 from typing import Any
 
-from clm_core.commands._common import quantity
+from clm_core.commands._common import add_command, quantity
 from clm_core.commands._options import add_overwrite
 from clm_core.errors import InputError
 
@@ -58,7 +58,7 @@ _DESCRIPTION = (
 def register(sub: Any) -> None:
     """Add the ``study`` sub-command."""
     help_text = "parametric study (grid or random sample of vehicle runs) on dask.distributed"
-    p = sub.add_parser("study", help=help_text, description=_DESCRIPTION)
+    p = add_command(sub, "study", run, help=help_text, description=_DESCRIPTION)
     p.add_argument("study", metavar="STUDY.yaml", help="study file (docs/studies.md; examples/studies/)")
     p.add_argument("--out", default=None, help="output directory (an earlier run's directory is resumed); required "
                    "unless --dry-run")
@@ -66,7 +66,6 @@ def register(sub: Any) -> None:
     p.add_argument("--no-figures", action="store_true", help="do not write critical_speed.png / exceedance.png")
     p.add_argument("--dry-run", action="store_true", help="check the study file and list its cases; run nothing")
     add_overwrite(p, "the output directory (an earlier run's results are discarded)")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

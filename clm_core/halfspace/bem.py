@@ -52,9 +52,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy import sparse, special
 
+from clm_core.arrays import Array, CArray
 from clm_core.errors import ParameterError
 from clm_core.halfspace.green import KernelEngine, RadialKernel, lagrange_weights
 from clm_core.profile import SoilProfile
@@ -70,14 +70,12 @@ __all__ = [
     "richardson",
 ]
 
-ComplexArray = NDArray[np.complex128]
-FloatArray = NDArray[np.float64]
 
 #: Radial grid points per Rayleigh wavelength at f_max (4-point interpolation error ~1e-4).
 DR_PER_WAVELENGTH = 16.0
 
 
-def graded_edges(length: float, n: int, grading: float = 0.5) -> FloatArray:
+def graded_edges(length: float, n: int, grading: float = 0.5) -> Array:
     """Cell edges over [-length/2, length/2], graded towards both ends.
 
     edges = length/2 [(1 - g) u + g sin(pi u / 2)],  u = linspace(-1, 1, n + 1).
@@ -91,7 +89,7 @@ def graded_edges(length: float, n: int, grading: float = 0.5) -> FloatArray:
     return 0.5 * length * ((1.0 - grading) * u + grading * np.sin(0.5 * math.pi * u))
 
 
-def _q(x: FloatArray, y: FloatArray) -> FloatArray:
+def _q(x: Array, y: Array) -> Array:
     """Signed quadrant integral int_0^x int_0^y dx dy / sqrt(x^2 + y^2)."""
     ax = np.abs(x)
     ay = np.abs(y)
@@ -103,8 +101,8 @@ def _q(x: FloatArray, y: FloatArray) -> FloatArray:
 
 
 def rect_inverse_distance(
-    x0: FloatArray, y0: FloatArray, x1: FloatArray, x2: FloatArray, y1: FloatArray, y2: FloatArray
-) -> FloatArray:
+    x0: Array, y0: Array, x1: Array, x2: Array, y1: Array, y2: Array
+) -> Array:
     """Closed form of int_{x1}^{x2} int_{y1}^{y2} dx dy / sqrt((x - x0)^2 + (y - y0)^2) [m].
 
     Valid for any position of the point (x0, y0), inside the rectangle
@@ -114,8 +112,8 @@ def rect_inverse_distance(
 
 
 def richardson(
-    coarse: ComplexArray | float, fine: ComplexArray | float, ratio: float = 2.0, order: float = 1.0
-) -> ComplexArray:
+    coarse: CArray | float, fine: CArray | float, ratio: float = 2.0, order: float = 1.0
+) -> CArray:
     """Richardson extrapolation fine + (fine - coarse) / (ratio^order - 1)."""
     c = np.asarray(coarse)
     f = np.asarray(fine)
@@ -177,7 +175,7 @@ class RowGeometry:
         return self.n_areas // 2
 
     @property
-    def positions(self) -> FloatArray:
+    def positions(self) -> Array:
         """Area centres along the track, x_a = a d, a = -n..n [m]."""
         return np.arange(-self.n, self.n + 1, dtype=np.float64) * self.spacing
 
@@ -207,25 +205,25 @@ class RowResult:
         Row and mesh.
     """
 
-    freqs: FloatArray
-    positions: FloatArray
-    flexibility: ComplexArray | None
-    centre_column: ComplexArray
+    freqs: Array
+    positions: Array
+    flexibility: CArray | None
+    centre_column: CArray
     geometry: RowGeometry
     info: dict[str, float] = field(default_factory=dict)
 
     @property
-    def impedance(self) -> ComplexArray:
+    def impedance(self) -> CArray:
         """K = H^{-1} [N/m], shape (nf, N, N) (needs the full flexibility)."""
         if self.flexibility is None:
             raise ParameterError("impedance: this result holds the centre column only (full=False)")
         return np.asarray(np.linalg.inv(self.flexibility))
 
-    def total_sum(self) -> ComplexArray:
+    def total_sum(self) -> CArray:
         """F / sum_j X_j for a unit force on the centre area, Eq. (16) [N/m] (``soil.chain.chain_sums``)."""
         return chain_sums(self.freqs, self.centre_column).total
 
-    def alternating_sum(self) -> ComplexArray:
+    def alternating_sum(self) -> CArray:
         """F / sum_j (-1)^j X_j, centre area j = 0, Eq. (18) [N/m] (``soil.chain.chain_sums``)."""
         return chain_sums(self.freqs, self.centre_column).alternating
 
@@ -366,7 +364,7 @@ class RowModel:
         """The radial Green's function on this model's grid at ``omega`` [rad/s]."""
         return self.engine(omega)
 
-    def cell_tables(self, omega: float) -> ComplexArray:
+    def cell_tables(self, omega: float) -> CArray:
         """T(o)[i, j]: displacement at cell centre i per unit pressure on cell j (+ its y image)
         of the area at offset o [m / (N/m^2)], shape (n_offsets, mh, mh)."""
         ker = self.kernel(omega)
@@ -375,7 +373,7 @@ class RowModel:
         smooth = (self._W @ ker.gs).reshape(self._static.shape)
         return np.asarray(ker.c0 * self._static + smooth)
 
-    def solve(self, omega: float, full: bool = True) -> tuple[ComplexArray | None, ComplexArray]:
+    def solve(self, omega: float, full: bool = True) -> tuple[CArray | None, CArray]:
         """Flexibility at one circular frequency ``omega`` [rad/s].
 
         Returns
@@ -420,11 +418,11 @@ class RowModel:
         # mirror: K[a, b] = K[-a, -b]
         for b in range(1, n + 1):
             K[:, c - b] = K[::-1, c + b]
-        H: ComplexArray = np.asarray(np.linalg.inv(K), dtype=np.complex128)
+        H: CArray = np.asarray(np.linalg.inv(K), dtype=np.complex128)
         return H, np.asarray(col, dtype=np.complex128)
 
     def sweep(
-        self, freqs: Sequence[float] | FloatArray, full: bool = True,
+        self, freqs: Sequence[float] | Array, full: bool = True,
         progress: Callable[[int, int], None] | None = None,
     ) -> RowResult:
         """Flexibility of the row at the frequencies ``freqs`` [Hz] (each <= f_max).
@@ -461,7 +459,7 @@ class RowModel:
 
 def row_sweep(
     profile: SoilProfile,
-    freqs: Sequence[float] | FloatArray,
+    freqs: Sequence[float] | Array,
     geometry: RowGeometry | None = None,
     *,
     full: bool = True,
@@ -506,7 +504,7 @@ def row_sweep(
 # ----------------------------------------------------------------------------
 
 
-def _disk_static_inverse_distance(rho: FloatArray, a: FloatArray) -> FloatArray:
+def _disk_static_inverse_distance(rho: Array, a: Array) -> Array:
     """int over the disk of radius a of 1/|x - x0| dA at distance rho from the centre [m].
 
     4 a E(rho/a) for rho <= a and 4 rho [E(a/rho) - (1 - a^2/rho^2) K(a/rho)] for rho > a
@@ -526,11 +524,11 @@ def _disk_static_inverse_distance(rho: FloatArray, a: FloatArray) -> FloatArray:
 def disk_impedance(
     profile: SoilProfile,
     radius: float,
-    freqs: Sequence[float] | FloatArray,
+    freqs: Sequence[float] | Array,
     n_rings: int = 16,
     grading: float = 0.7,
     n_theta: int = 64,
-) -> ComplexArray:
+) -> CArray:
     """Vertical impedance of a rigid massless disk on the surface (relaxed contact) [N/m].
 
     Ring elements of uniform pressure (edges graded towards the rim),

@@ -61,6 +61,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import sparse, special
 
+from clm_core.arrays import Array, CArray
 from clm_core.errors import ParameterError
 from clm_core.halfspace.bessel import j0_outer
 from clm_core.profile import Layer, SoilProfile
@@ -75,8 +76,6 @@ __all__ = [
     "surface_flexibility_k",
 ]
 
-ComplexArray = NDArray[np.complex128]
-FloatArray = NDArray[np.float64]
 
 _GL_N = 10
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(_GL_N)
@@ -94,14 +93,14 @@ def _wavenumbers(layer: Layer, omega: float) -> tuple[complex, complex, complex,
     return lam, mu, kp2, ks2
 
 
-def _sqrt_branch(x: ComplexArray) -> ComplexArray:
+def _sqrt_branch(x: CArray) -> CArray:
     """sqrt with Re >= 0 (decaying in depth); on the cut the +i root (outgoing for exp(+i w t))."""
     s = np.sqrt(x)
     flip = (s.real < 0.0) | ((s.real == 0.0) & (s.imag < 0.0))
     return np.where(flip, -s, s)
 
 
-def _layer_dynamic(k: ComplexArray, layer: Layer, omega: float) -> ComplexArray:
+def _layer_dynamic(k: CArray, layer: Layer, omega: float) -> CArray:
     """Dynamic stiffness of a finite layer, shape (nk, 4, 4), DOFs (u_x, u_z)_top, (u_x, u_z)_bottom."""
     assert layer.thickness is not None
     h = layer.thickness
@@ -128,7 +127,7 @@ def _layer_dynamic(k: ComplexArray, layer: Layer, omega: float) -> ComplexArray:
     return np.swapaxes(KT, 1, 2)
 
 
-def _halfspace_dynamic(k: ComplexArray, layer: Layer, omega: float) -> ComplexArray:
+def _halfspace_dynamic(k: CArray, layer: Layer, omega: float) -> CArray:
     """Dynamic stiffness of the half-space, shape (nk, 2, 2), DOFs (u_x, u_z) at its top."""
     _, mu, kp2, ks2 = _wavenumbers(layer, omega)
     al = _sqrt_branch(k * k - kp2)
@@ -141,7 +140,7 @@ def _halfspace_dynamic(k: ComplexArray, layer: Layer, omega: float) -> ComplexAr
     return np.swapaxes(KT, 1, 2)
 
 
-def _static_basis(k: FloatArray, layer: Layer, z: float, ref_top: bool, h: float) -> tuple[ComplexArray, ...]:
+def _static_basis(k: Array, layer: Layer, z: float, ref_top: bool, h: float) -> tuple[CArray, ...]:
     """Static solution basis at depth z: returns (ux, uz, sxz, szz), each (nk, 4) (or (nk, 2))."""
     lam, mu = layer.lame(0.0)
     M = lam + 2.0 * mu
@@ -167,7 +166,7 @@ def _static_basis(k: FloatArray, layer: Layer, z: float, ref_top: bool, h: float
     return tuple(np.stack(c, axis=-1).astype(np.complex128) for c in (cols_ux, cols_uz, cols_sxz, cols_szz))
 
 
-def _layer_static(k: FloatArray, layer: Layer) -> ComplexArray:
+def _layer_static(k: Array, layer: Layer) -> CArray:
     assert layer.thickness is not None
     h = layer.thickness
     ux0, uz0, sx0, sz0 = _static_basis(k, layer, 0.0, False, h)
@@ -178,7 +177,7 @@ def _layer_static(k: FloatArray, layer: Layer) -> ComplexArray:
     return np.swapaxes(KT, 1, 2)
 
 
-def _halfspace_static(k: FloatArray, layer: Layer) -> ComplexArray:
+def _halfspace_static(k: Array, layer: Layer) -> CArray:
     ux0, uz0, sx0, sz0 = _static_basis(k, layer, 0.0, True, 0.0)
     D = np.stack([ux0, uz0], axis=1)
     S = np.stack([-sx0, -sz0], axis=1)
@@ -188,7 +187,7 @@ def _halfspace_static(k: FloatArray, layer: Layer) -> ComplexArray:
 
 def surface_flexibility_k(
     profile: SoilProfile, k: NDArray[np.complex128] | NDArray[np.float64], omega: float
-) -> ComplexArray:
+) -> CArray:
     """Vertical surface flexibility G(k, w) of the layered half-space [m^3/N · 1/m^2 = m/N per (N/m^2) ...].
 
     u_z(k) = G(k, w) q_z(k) for a vertical surface traction q_z e^{-i k x}
@@ -268,7 +267,7 @@ def asymptotic_coefficient(layer: Layer, omega: float) -> complex:
 # ----------------------------------------------------------------------------
 
 
-def _gl_panels(a: float, b: float, n_panels: int) -> tuple[FloatArray, FloatArray]:
+def _gl_panels(a: float, b: float, n_panels: int) -> tuple[Array, Array]:
     """Composite 10-point Gauss–Legendre nodes and weights on [a, b] with equal panels."""
     edges = np.linspace(a, b, n_panels + 1)
     half = 0.5 * np.diff(edges)
@@ -304,21 +303,21 @@ class RadialKernel:
 
     omega: float
     c0: complex
-    r: FloatArray
-    gs: ComplexArray
+    r: Array
+    gs: CArray
 
-    def smooth(self, rq: NDArray[np.float64]) -> ComplexArray:
+    def smooth(self, rq: NDArray[np.float64]) -> CArray:
         """The smooth part g_s at radii ``rq`` [m] (0 <= rq <= r[-1])."""
         W = lagrange_weights(self.r, np.asarray(rq, dtype=float).ravel())
         return np.asarray(W @ self.gs, dtype=np.complex128).reshape(np.shape(rq))
 
-    def __call__(self, rq: NDArray[np.float64]) -> ComplexArray:
+    def __call__(self, rq: NDArray[np.float64]) -> CArray:
         """u_z(r)/P at radii ``rq`` > 0 [m/N]."""
         rq = np.asarray(rq, dtype=float)
         return np.asarray(self.c0 / rq + self.smooth(rq), dtype=np.complex128)
 
 
-def lagrange_weights(grid: FloatArray, rq: FloatArray) -> sparse.csr_matrix:
+def lagrange_weights(grid: Array, rq: Array) -> sparse.csr_matrix:
     """Sparse matrix (len(rq), len(grid)) of 4-point Lagrange interpolation weights on a uniform grid.
 
     The stencil is clamped at both ends (one-sided near r = 0, so that the
@@ -406,7 +405,7 @@ class KernelEngine:
         self.profile = profile
         self.dr = float(dr)
         n = int(math.ceil(r_max / dr)) + 4
-        self.r: FloatArray = np.arange(n, dtype=np.float64) * self.dr
+        self.r: Array = np.arange(n, dtype=np.float64) * self.dr
         self.r_top = float(self.r[-1])
         self.resolution = resolution
         self.k_factor = k_factor
@@ -423,10 +422,10 @@ class KernelEngine:
         x, w = _gl_panels(0.0, float(edges[-1]), self.n_panels)
         self.k_real = x
         self.w_real = w
-        self._J0_real: FloatArray | None = None
+        self._J0_real: Array | None = None
 
     @property
-    def J0_real(self) -> FloatArray:
+    def J0_real(self) -> Array:
         """J0(k r) on the fixed real grid, shape (n_r, n_k) (computed on first use)."""
         if self._J0_real is None:
             self._J0_real = np.asarray(special.j0(np.outer(self.r, self.k_real)), dtype=np.float64)
@@ -515,7 +514,7 @@ def point_load_displacement(
     r: NDArray[np.float64],
     omega: float,
     **kwargs: float,
-) -> ComplexArray:
+) -> CArray:
     """Surface vertical displacement per unit vertical point load, u_z(r)/P [m/N].
 
     Parameters

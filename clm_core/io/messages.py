@@ -78,6 +78,7 @@ __all__ = [
     "encode_wheel_rail_response",
     "frame_from_cdr",
     "frame_from_msg",
+    "header_msg",
     "interface_dir",
     "message_definition",
     "packaged_interface_dir",
@@ -185,7 +186,8 @@ def wheel_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
     }
 
 
-def _rb_header(ts: Typestore, t_ns: int, frame_id: str) -> Any:
+def header_msg(ts: Typestore, t_ns: int, frame_id: str) -> Any:
+    """A ``std_msgs/Header`` rosbags message: stamp ``t_ns`` [ns], ``frame_id`` (rclpy flavour: ``rclpy_header``)."""
     sec, nanosec = ns_to_stamp(t_ns)
     T = ts.types
     return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id)
@@ -220,7 +222,7 @@ def wheel_loads_msg(
     v = np.full(i.size, np.nan) if speeds is None else np.asarray(speeds, dtype=np.float64).ravel()
     WheelLoad = ts.types["clm_msgs/msg/WheelLoad"]
     return ts.types[WHEEL_LOADS](
-        header=_rb_header(ts, t_ns, frame_id),
+        header=header_msg(ts, t_ns, frame_id),
         wheels=[
             WheelLoad(id=int(a), position=float(b), force=float(c), speed=float(d))
             for a, b, c, d in zip(i.tolist(), p.tolist(), f.tolist(), v.tolist())
@@ -231,8 +233,8 @@ def wheel_loads_msg(
 def response_msgs(ts: Typestore, resp: ResponseFrame, t_ns: int, frame_id: str = "track") -> tuple[Any, Any]:
     """``(SleeperResponse, WheelRailResponse)`` rosbags messages of a response, stamped ``t_ns`` [ns]."""
     return (
-        ts.types[SLEEPER_RESPONSE](header=_rb_header(ts, t_ns, frame_id), **sleeper_fields(resp)),
-        ts.types[WHEEL_RAIL_RESPONSE](header=_rb_header(ts, t_ns, frame_id), **wheel_fields(resp)),
+        ts.types[SLEEPER_RESPONSE](header=header_msg(ts, t_ns, frame_id), **sleeper_fields(resp)),
+        ts.types[WHEEL_RAIL_RESPONSE](header=header_msg(ts, t_ns, frame_id), **wheel_fields(resp)),
     )
 
 

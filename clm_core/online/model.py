@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError, ParameterError
 from clm_core.io.timebase import NS
 from clm_core.online import policy as rules
@@ -39,9 +40,6 @@ from clm_core.online.records import OnlineStats, Reason, Rejected, ResponseFrame
 from clm_core.params import ModelParams
 from clm_core.solver import FrameLoads, FrameResponses, TrackSimulator
 from clm_core.solver import _frame_kernel as fk
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Frames per kernel run at most (bounds the output buffers and the work redone after a refused response).
 RUN_FRAMES = 256

@@ -18,16 +18,13 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from clm_core import settings
+from clm_core.arrays import Array
 from clm_core.errors import ParameterError
 from clm_core.io.timebase import INT32_MAX, INT32_MIN, NS
 from clm_core.online.records import Reason
 from clm_core.solver import _frame_kernel as fk
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Stamps representable as ``builtin_interfaces/Time`` (int32 seconds) [ns].
 STAMP_MIN, STAMP_MAX = INT32_MIN * NS, INT32_MAX * NS + NS - 1

@@ -16,13 +16,11 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from clm_core.arrays import Array, IntArray
 from clm_core.errors import InputError
 from clm_core.solver.records import SleeperFields
-
-Array = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 class Reason(str, Enum):

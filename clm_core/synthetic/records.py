@@ -26,9 +26,9 @@ from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.signal import resample_poly
 
+from clm_core.arrays import Array
 from clm_core.calibration.bagio import WheelLoadRecord
 from clm_core.calibration.channels import ChannelSpec, unit_factor
 from clm_core.calibration.errors import CalibrationError
@@ -39,8 +39,6 @@ from clm_core.newmark import NewmarkLinear
 from clm_core.params import ModelParams, SoilParams, load_model, load_soil
 from clm_core.soil.chain import chain_matrices
 from clm_core.track import assemble
-
-Array = NDArray[np.float64]
 
 #: Where each SleeperResponse displacement field is measured.
 _FIELD_LOCATION = {"rail_deflection": "rail", "sleeper_displacement": "sleeper", "area_displacement": "soil"}

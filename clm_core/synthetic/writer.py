@@ -35,8 +35,14 @@ from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.signals import Signal
 from clm_core.io.bags import BagWriter
 from clm_core.io.errors import BagError
-from clm_core.io.messages import SLEEPER_RESPONSE, WHEEL_LOADS, encode_sleeper_response, encode_wheel_loads
-from clm_core.io.timebase import ns_to_stamp, seconds_to_ns, seconds_to_ns_array
+from clm_core.io.messages import (
+    SLEEPER_RESPONSE,
+    WHEEL_LOADS,
+    encode_sleeper_response,
+    encode_wheel_loads,
+    header_msg,
+)
+from clm_core.io.timebase import seconds_to_ns, seconds_to_ns_array
 from clm_core.synthetic.records import SyntheticRecord, add_noise, simulate_impact, simulate_passby, simulate_receptance
 
 Storage = Literal["mcap", "sqlite3"]
@@ -194,13 +200,9 @@ def write_bag(
     return SyntheticBag(out, out / "channels.yaml", out / "truth.yaml", rec)
 
 
-def _header(T: Any, t_ns: int, frame: str) -> Any:
-    sec, nanosec = ns_to_stamp(t_ns)
-    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame)
-
-
 def _write_channel(writer: BagWriter, sig: Signal, style: str, block_size: int) -> None:
-    T = writer.typestore.types
+    ts = writer.typestore
+    T = ts.types
     spec = sig.spec
     raw = sig.values / spec.factor  # SI -> recorded unit
     stamps = T0_NS + seconds_to_ns_array(sig.t)
@@ -211,12 +213,13 @@ def _write_channel(writer: BagWriter, sig: Signal, style: str, block_size: int) 
             conn = writer.add_topic(spec.topic, "geometry_msgs/msg/WrenchStamped")
             W, zero = T["geometry_msgs/msg/Wrench"], V3(x=0.0, y=0.0, z=0.0)
             for st, v in zip(stamps.tolist(), raw.tolist()):
-                msg = T[conn.msgtype](header=_header(T, st, frame), wrench=W(force=V3(x=0.0, y=0.0, z=v), torque=zero))
+                wrench = W(force=V3(x=0.0, y=0.0, z=v), torque=zero)
+                msg = T[conn.msgtype](header=header_msg(ts, st, frame), wrench=wrench)
                 writer.write_msg(conn, st + _LOG_DELAY_NS, msg)
         else:
             conn = writer.add_topic(spec.topic, "geometry_msgs/msg/Vector3Stamped")
             for st, v in zip(stamps.tolist(), raw.tolist()):
-                msg = T[conn.msgtype](header=_header(T, st, frame), vector=V3(x=0.0, y=0.0, z=v))
+                msg = T[conn.msgtype](header=header_msg(ts, st, frame), vector=V3(x=0.0, y=0.0, z=v))
                 writer.write_msg(conn, st + _LOG_DELAY_NS, msg)
     elif style == "float64":
         conn = writer.add_topic(spec.topic, "std_msgs/msg/Float64")

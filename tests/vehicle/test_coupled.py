@@ -10,25 +10,14 @@ import pytest
 from scipy.signal import butter, sosfiltfilt
 
 from clm_core.errors import ParameterError, PresetError
-from clm_core.params import ModelParams, load_model
+from clm_core.params import ModelParams
 from clm_core.vehicle.coupled import CoupledSimulation
 from clm_core.vehicle.impact import equivalent_track, jenkins_p2
 from clm_core.vehicle.irregularity import DippedJoint, Irregularity, WheelFlat, random_profile
 from clm_core.vehicle.multibody import Train
-from clm_core.vehicle.presets import load_vehicle
 from clm_core.vehicle.run import VehicleRunSpec, run_vehicle
 
 DT = 1e-4
-
-
-@pytest.fixture(scope="module")
-def params() -> ModelParams:
-    return load_model("mevergnies", "mevergnies", "clm")
-
-
-@pytest.fixture(scope="module")
-def power_car() -> Train:
-    return load_vehicle("thalys").train(1)
 
 
 def test_at_rest_static_loads_and_soil_force_balance(params: ModelParams, power_car: Train) -> None:

@@ -16,27 +16,16 @@ import numpy as np
 import pytest
 
 from clm_core.errors import InputError
-from clm_core.params import ModelParams, SleeperOverride, load_model
+from clm_core.params import ModelParams, SleeperOverride
 from clm_core.vehicle.coupled import CoupledResult, CoupledSimulation
 from clm_core.vehicle.irregularity import DippedJoint, Irregularity, WheelFlat, random_profile
 from clm_core.vehicle.multibody import Train
-from clm_core.vehicle.presets import load_vehicle
 
 RTOL = 1e-9
 FIELDS = ("wheel_position", "wheel_load", "compression", "wheel_displacement", "rail_deflection", "irregularity",
           "vehicle_energy", "t_out", "soil_force", "sleeper_rail_deflection", "peak_soil_force")
 #: least scale of a field: the vibration energy of a vehicle at rest is rounding noise (~1e-16 J)
 FLOOR = {"vehicle_energy": 1e-6}
-
-
-@pytest.fixture(scope="module")
-def params() -> ModelParams:
-    return load_model("mevergnies", "mevergnies", "clm")
-
-
-@pytest.fixture(scope="module")
-def power_car() -> Train:
-    return load_vehicle("thalys").train(1)
 
 
 def _both(**kw: object) -> tuple[CoupledResult, CoupledResult]:

@@ -9,7 +9,7 @@ import pytest
 from scipy.signal import butter, sosfiltfilt
 
 from clm_core.errors import InputError, ParameterError
-from clm_core.params import ModelParams, load_model
+from clm_core.params import ModelParams
 from clm_core.vehicle.coupled import CoupledSimulation
 from clm_core.vehicle.irregularity import DippedJoint, Irregularity
 from clm_core.vehicle.presets import load_vehicle
@@ -17,11 +17,6 @@ from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
 
 SUBSTEPS = 10  # 1 kHz messages at dt = 1e-4 s
-
-
-@pytest.fixture(scope="module")
-def params() -> ModelParams:
-    return load_model("mevergnies", "mevergnies", "clm")
 
 
 def _pair(params: ModelParams, **spec: object) -> tuple[StreamingVehicle, StreamingVehicle]:

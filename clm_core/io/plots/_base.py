@@ -23,7 +23,7 @@ from matplotlib.legend import Legend
 from matplotlib.transforms import Bbox
 from numpy.typing import NDArray
 
-from clm_core.arrays import Array
+from clm_core.arrays import Array, CArray
 
 #: Called with every figure and its file just before the file is written
 #: (after the layout): the test suite checks every figure it renders this way.
@@ -255,3 +255,39 @@ def figure_legend(fig: Figure, axs: Sequence[Axes]) -> None:
                 handles.append(h)
                 labels.append(lab)
     fig.legend(handles, labels, loc="outside lower center", ncol=min(4, len(labels)), frameon=False)
+
+
+def receptance_lines(amplitude: Axes, phase: Axes, f: Array, H: CArray, *, db: bool = False,
+                     unwrap: bool = False, label: str | None = None, **line: Any) -> None:
+    """One receptance H(f) [m/N]: its amplitude on ``amplitude``, its phase [deg] on ``phase``, the same line style.
+
+    Parameters
+    ----------
+    amplitude, phase : Axes
+        The amplitude panel (log scale, or dB re 1 m/N when ``db``) and the phase panel.
+    f : (n_f,) array
+        Frequencies [Hz].
+    H : (n_f,) complex array
+        The receptance [m/N].
+    db : bool
+        Amplitude as 20 log10 |H| [dB re 1 m/N] on a linear axis instead of |H| on a log axis.
+    unwrap : bool
+        Unwrap the phase (no 360-degree jumps).
+    label : str, optional
+        Legend entry (of the amplitude line only).
+    **line
+        Line style of both lines (color, ls, lw, ...).
+    """
+    if db:
+        amplitude.plot(f, 20.0 * np.log10(np.abs(H)), label=label, **line)
+    else:
+        amplitude.semilogy(f, np.abs(H), label=label, **line)
+    angle = np.unwrap(np.angle(H)) if unwrap else np.angle(H)
+    phase.plot(f, np.degrees(angle), **line)
+
+
+def label_receptance_axes(amplitude: Axes, phase: Axes, amplitude_label: str) -> None:
+    """Axis labels of an amplitude panel above a phase panel [deg] over frequency [Hz]."""
+    amplitude.set_ylabel(amplitude_label)
+    phase.set_ylabel("phase [deg]")
+    phase.set_xlabel("frequency [Hz]")

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from matplotlib.figure import Figure
 
-from clm_core.io.plots._base import legend, new_figure, save, style
+from clm_core.io.plots._base import label_receptance_axes, legend, new_figure, receptance_lines, save, style
 
 if TYPE_CHECKING:
     from clm_core.calibration.api import CalibrationResult
@@ -61,18 +61,14 @@ def plot_transfer_functions(result: CalibrationResult, path: str | Path) -> Figu
         f = data.frequency
         for n, k in enumerate(_pick_channels(result)):
             col = f"C{n}"
-            a1.semilogy(f, np.abs(data.H[:, k]), color=col, lw=1.0, label=data.channels[k].name)
-            a1.semilogy(f, np.abs(Hm[:, k]), color=col, ls="--", lw=1.4)
-            a2.plot(f, np.degrees(np.angle(data.H[:, k])), color=col, lw=1.0)
-            a2.plot(f, np.degrees(np.angle(Hm[:, k])), color=col, ls="--", lw=1.4)
+            receptance_lines(a1, a2, f, data.H[:, k], color=col, lw=1.0, label=data.channels[k].name)
+            receptance_lines(a1, a2, f, Hm[:, k], color=col, ls="--", lw=1.4)
         for c in result.comparisons:
             k0 = [k for k, ch in enumerate(data.channels) if ch.index == 0 and ch.location == "area"]
             if k0:
                 a1.semilogy(f, np.abs(c.H_model[:, k0[0]]), ":", color="k" if c.model == "lysmer" else "0.5",
                             lw=1.2, label=f"area 0, {c.model} fit")
-        a1.set_ylabel("|H| [m/N]")
-        a2.set_ylabel("phase [deg]")
-        a2.set_xlabel("frequency [Hz]")
+        label_receptance_axes(a1, a2, "|H| [m/N]")
         s_note = f", window decay {data.sigma:.3g} 1/s (H at s = sigma + j w)" if data.sigma > 0 else ""
         fig.suptitle(f"{result.method}: measured (solid) vs fitted {result.model} (dashed), "
                      f"{result.norm} norm{s_note}", fontsize=9.5)
@@ -244,15 +240,10 @@ def plot_soil_calibration(cal: SoilCalibration, out: str | Path) -> list[str]:
         for k, colr in zip(range(3), ("k", "C3", "C0"), strict=False):
             if c + k >= n_areas:
                 break
-            ref = cal.row.centre_column[:, c + k]
-            mod = clm[:, c + k]
-            a0.semilogy(f, np.abs(ref), color=colr, ls="-", label=f"area {k}: rigorous")
-            a0.semilogy(f, np.abs(mod), color=colr, ls="--", label=f"area {k}: CLM")
-            a1.plot(f, np.degrees(np.unwrap(np.angle(ref))), color=colr, ls="-")
-            a1.plot(f, np.degrees(np.unwrap(np.angle(mod))), color=colr, ls="--")
-        a0.set_ylabel("|X_j / F| [m/N]")
-        a1.set_ylabel("phase [deg]")
-        a1.set_xlabel("frequency [Hz]")
+            receptance_lines(a0, a1, f, cal.row.centre_column[:, c + k], unwrap=True, color=colr, ls="-",
+                             label=f"area {k}: rigorous")
+            receptance_lines(a0, a1, f, clm[:, c + k], unwrap=True, color=colr, ls="--", label=f"area {k}: CLM")
+        label_receptance_axes(a0, a1, "|X_j / F| [m/N]")
         legend(a0, ncol=3)
         a0.set_title(f"{cal.profile.name}: receptances of the loaded area (0) and its neighbours")
         save(fig, d / "receptances.png")

@@ -9,7 +9,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from clm_core.io.plots._base import legend, new_figure, save, style
+from clm_core.io.plots._base import label_receptance_axes, legend, new_figure, receptance_lines, save, style
 
 if TYPE_CHECKING:
     from clm_core.frequency import Receptance
@@ -39,9 +39,7 @@ def plot_receptance(rec: Receptance, path: str | Path, title: str = "") -> Figur
         fig, axs = new_figure(2, 1, (8.5, 7.0), sharex=True)
         ax1, ax2 = axs[:, 0]
         for i in range(rec.H.shape[1]):
-            h = rec.H[:, i]
-            ax1.plot(rec.frequency, 20 * np.log10(np.abs(h)), color=f"C{i}", label=f"H{i + 1}1")
-            ax2.plot(rec.frequency, np.degrees(np.angle(h)), color=f"C{i}", label=f"H{i + 1}1")
+            receptance_lines(ax1, ax2, rec.frequency, rec.H[:, i], db=True, color=f"C{i}", label=f"H{i + 1}1")
         peaks = rec.peaks_hz()
         db11 = 20 * np.log10(np.abs(rec.H[:, 0]))
         for ax in (ax1, ax2):
@@ -55,9 +53,7 @@ def plot_receptance(rec: Receptance, path: str | Path, title: str = "") -> Figur
                              zorder=6, bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})
             lo, hi = ax1.get_ylim()
             ax1.set_ylim(lo, hi + 0.08 * (hi - lo))  # room for the peak labels
-        ax1.set_ylabel("|H| [dB re 1 m/N]")
-        ax2.set_ylabel("phase [deg]")
-        ax2.set_xlabel("frequency [Hz]")
+        label_receptance_axes(ax1, ax2, "|H| [dB re 1 m/N]")
         legend(ax1, ncol=3)
         ax1.set_title(title or "Track receptance (force on the rail above sleeper 1)")
         save(fig, path)
