@@ -209,7 +209,8 @@ class BlockPeaks:
         pk = np.asarray(block_peaks, dtype=float)
         f = np.asarray(front_positions, dtype=float)
         t = np.asarray(times, dtype=float)
-        v = np.asarray(values, dtype=float).reshape(t.size, -1)
+        v = np.asarray(values, dtype=float)
+        v = v.reshape(t.size, -1) if t.size else np.empty((0, pk.size))  # a block without output instants
         if np.isfinite(pk).any():
             self._best_all = max(self._best_all, float(np.nanmax(np.where(np.isfinite(pk), pk, -np.inf))))
         if self._front >= self.x_from - _TOL:

@@ -97,3 +97,19 @@ def test_window_rules() -> None:
     assert bp.maximum() == (2.5, 0.03, False)
     bp.add([3.0], [7.0], [0.04], [[2.9]])               # began at 3.2 m: its every-step maximum
     assert bp.maximum() == (3.0, 0.03, False)
+
+
+def test_a_block_without_output_instants_counts_with_its_every_step_maxima() -> None:
+    """A block of steps between two output instants (short runs, a coarse output_dt) reports no instants."""
+    bp = BlockPeaks(front_start=0.0, spacing=0.6, margin_bays=1)
+    bp.add([1.0, 2.0], [], [], np.empty((0, 2)))  # before the margin: not counted, no failure
+    bp.add([3.0, 4.0], [0.7], [0.01], [[3.0, 4.0]])  # crosses x_from = 0.6 at its output instant
+    bp.add([5.0, 6.0], [], [], [])  # past the margin, no instants: its every-step maxima count
+    assert bp.maximum()[0] == 6.0
+
+
+def test_clm_simulate_of_a_short_run(tmp_path: Path) -> None:
+    """0.2 s (shorter than the start margin at the default output step) runs and writes its summary."""
+    assert main(["simulate", "--duration", "0.2", "--out", str(tmp_path / "short")]) == 0
+    summary = json.loads((tmp_path / "short" / "summary.json").read_text())
+    assert summary
