@@ -227,16 +227,27 @@ def _exit_code(nodes: tuple[Any, ...]) -> int | None:
     return None
 
 
+#: Seconds between two checks of the context and the nodes' exit codes while spinning.
+CHECK_PERIOD = 0.02
+
+
 def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: float) -> int:
     """Spin until a signal, the end of the context or a node's ``exit_code``; return the exit code."""
     serve = [node.serve_due for node in _having(nodes, "serve_due")]
-    while not stop.requested() and rclpy.ok():
-        code = _exit_code(nodes)
-        if code is not None:
-            return code
-        wait = min([poll, *(max(s(), 0.0) for s in serve)])
+    spin_once, clock = executor.spin_once, time.monotonic
+    check = 0.0  # the context and the exit codes are checked every CHECK_PERIOD (a message each ms otherwise)
+    while not stop.requested():
+        now = clock()
+        if now >= check:
+            check = now + CHECK_PERIOD
+            if not rclpy.ok():
+                break
+            code = _exit_code(nodes)
+            if code is not None:
+                return code
+        wait = min([poll, *(max(s(), 0.0) for s in serve)]) if serve else poll
         try:
-            executor.spin_once(timeout_sec=wait)
+            spin_once(timeout_sec=wait)
         except Exception as exc:  # a callback's failure must not end the node
             if stop.requested() or not rclpy.ok():
                 break
