@@ -142,7 +142,9 @@ def test_peer_killed_node_keeps_running_and_answers_the_next(ros_python, ros_dom
                 break
         assert answers > 100
         d = drv.latest_diagnostics()
-        assert d["publish_failed"] == "0" and d.get("rejected.stamp_not_increasing") is None, d
+        # frames of the dead peer still queued when its lease ran out may take the restart; the new peer's first
+        # frames are then a backward jump, refused until confirmed: at most resync_confirm - 1 = 2 (seen once in CI)
+        assert d["publish_failed"] == "0" and int(d.get("rejected.stamp_not_increasing", "0")) <= 2, d
         peer2.kill()
         peer2.wait(10)
     assert "no publisher any more (peer gone)" in run.err and "publisher(s) back" in run.err, run.err
