@@ -640,8 +640,6 @@ def test_pip_install_puts_scripts_in_bin_and_data_in_share(tmp_path: Path) -> No
 DEMO_BAG = REPO / "bags" / "demo" / "demo_bag"
 
 
-@pytest.mark.xfail(reason="responses recorded with float-second stamps (9 or 11 steps per 1-ms frame, issue 12.8); "
-                   "the bag's responses are regenerated on p2-online", strict=False)
 def test_demo_bag_is_small_complete_and_replays_bit_for_bit(tmp_path: Path) -> None:
     import numpy as np
     from clm_ros.replay import replay_bag
