@@ -9,24 +9,23 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from clm_core.commands._options import add_overwrite, add_setting
+from clm_core.commands._common import add_command
+from clm_core.commands._options import add_overwrite
 
 
 def register(sub: Any) -> None:
     """Add the ``demo`` sub-command."""
-    p = sub.add_parser(
-        "demo",
+    p = add_command(
+        sub, "demo", run,
         help="end-to-end demo: vehicle and track nodes over DDS, recorded and plotted",
         description="Starts the vehicle simulator node and the track-soil node as separate "
         "processes (loopback DDS), records the run to a bag and renders plots in --out.",
+        settings=("vehicle", "speed", "duration", "track", "soil", "model", "rate", "dt", "n_sleepers",
+                  "irregularity", "seed", "closed_loop", "storage", "domain_id"),
     )
     p.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
-    for name in ("vehicle", "speed", "duration", "track", "soil", "model", "rate", "dt", "n_sleepers",
-                 "irregularity", "seed", "closed_loop", "storage", "domain_id"):
-        add_setting(p, name)
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
     add_overwrite(p)
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -11,23 +11,23 @@ import argparse
 import sys
 from typing import Any
 
-from clm_core.commands._options import add_overwrite, add_setting
+from clm_core.commands._common import add_command
+from clm_core.commands._options import add_overwrite
 
 
 def register(sub: Any) -> None:
     """Add the ``fleet`` sub-command."""
-    p = sub.add_parser(
-        "fleet",
+    p = add_command(
+        sub, "fleet", run,
         help="many trains online: N vehicle + track node pairs over DDS, each in its namespace /train_i",
         description="Starts N vehicle simulator + track-soil node pairs as separate processes, pair i in the "
         "namespace /train_i, all in one ROS domain; records them to DIR/fleet_bag, checks every pair (each "
         "wheel-load message answered once, in order; answers equal to the offline replay of its recorded wheel "
         "loads) and writes per-train and overall figures to DIR/summary.json.",
+        settings=("fleet_trains", "fleet_first_index", "vehicle", "speed", "duration", "track", "soil", "model",
+                  "rate", "dt", "n_sleepers", "irregularity", "seed", "closed_loop", "storage", "domain_id"),
     )
     p.add_argument("--out", default="results/fleet", help="output directory (default results/fleet)")
-    for name in ("fleet_trains", "fleet_first_index", "vehicle", "speed", "duration", "track", "soil", "model",
-                 "rate", "dt", "n_sleepers", "irregularity", "seed", "closed_loop", "storage", "domain_id"):
-        add_setting(p, name)
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
     p.add_argument("--no-record", dest="record", action="store_false",
                    help="no bag (figures from the vehicles' own counts and lags; implies --no-verify)")
@@ -43,7 +43,6 @@ def register(sub: Any) -> None:
                    "processes per train)")
     p.add_argument("--timeout", type=float, default=600.0, help="longest run [s] (default 600)")
     add_overwrite(p)
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
