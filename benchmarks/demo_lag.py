@@ -40,13 +40,14 @@ if str(CLM_ROS_SRC) not in sys.path:
 
 from clm_ros.launcher import run_demo  # noqa: E402
 from clm_ros.processes import hold_domain_id  # noqa: E402
+from clm_ros.run_settings import RunSettings  # noqa: E402
 
 HOG = "while True:\n    pass\n"
 
 
 def one_run(duration: float, out: Path) -> dict[str, Any]:
     with hold_domain_id() as dom:
-        s = run_demo(out, duration=duration, domain_id=dom, hold_domain=False, overwrite=True)
+        s = run_demo(out, RunSettings(duration=duration, domain_id=dom), hold_domain=False, overwrite=True)
     counts = s["message_counts"]
     cpu = s.get("cpu_us_per_message", {})
     v = s["vehicle_node"]

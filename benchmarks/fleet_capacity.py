@@ -55,9 +55,10 @@ def one_fleet(n: int, duration: float, rate: float, record: bool, out: Path, pai
     """Run a fleet of ``n`` trains in a free ROS domain; its summary."""
     from clm_ros.fleet import run_fleet
     from clm_ros.processes import hold_domain_id
+    from clm_ros.run_settings import RunSettings
 
     with hold_domain_id() as dom:
-        return run_fleet(out, trains=n, duration=duration, rate_hz=rate, domain_id=dom, hold_domain=False,
+        return run_fleet(out, RunSettings(duration=duration, rate=rate, domain_id=dom), trains=n, hold_domain=False,
                          record=record, verify=False, timeout=120 + 20 * duration * n, overwrite=True,
                          progress=False, pair_process=pair_process)
 

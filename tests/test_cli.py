@@ -7,7 +7,6 @@ from pathlib import Path
 import pytest
 
 from clm_core.cli import main
-from tests.clitools import input_error, run_clm
 
 HEADER = "frequency_hz,H11_re,H11_im,H21_re,H21_im,H31_re,H31_im,H41_re,H41_im,H51_re,H51_im"
 
@@ -87,18 +86,3 @@ def test_soil_chain_every_preset(tmp_path: Path, soil: str) -> None:
     assert (tmp_path / "chain.png").stat().st_size > 20_000
 
 
-@pytest.mark.parametrize(
-    ("argv", "message"),
-    [
-        (["receptance", "--soil", "clay"], "unknown soil preset 'clay'"),
-        (["receptance", "--track", "tgv"], "unknown track preset 'tgv'"),
-        (["receptance", "--set", "foo=1"], "unknown parameter 'foo'"),
-        (["receptance", "--set", "kb=-4"], "track.kb = -4: must be > 0"),
-        (["receptance", "--set", "kb=nan"], "kb = nan"),
-        (["receptance", "--set", "dc=-400e3"], "not positive semi-definite"),
-        (["receptance", "--sleepers", "9"], "--sleepers 9"),
-        (["soil-chain", "--areas", "40"], "--areas 40"),
-    ],
-)
-def test_clear_errors(tmp_path: Path, argv: list[str], message: str) -> None:
-    assert message in input_error(run_clm([*argv, "--out", str(tmp_path)]))

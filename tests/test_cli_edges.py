@@ -32,12 +32,20 @@ LONG_NUMBER = re.compile(r"\d\.\d{6,}|\d{7,}\.\d")
         (["simulate", "--sleepers", "5"], "--sleepers = 5: must be 11 to 4001"),
         (["simulate", "--seed", "-1"], "--seed = -1: must be 0 to 2147483647"),
         (["simulate"], "the following arguments are required: --out"),
+        (["receptance", "--soil", "clay"], "unknown soil preset 'clay'"),
+        (["receptance", "--track", "tgv"], "unknown track preset 'tgv'"),
+        (["receptance", "--set", "foo=1"], "unknown parameter 'foo'"),
+        (["receptance", "--set", "kb=-4"], "track.kb = -4: must be > 0"),
+        (["receptance", "--set", "kb=nan"], "kb = nan"),
+        (["receptance", "--set", "dc=-400e3"], "not positive semi-definite"),
+        (["receptance", "--sleepers", "9"], "--sleepers 9"),
+        (["soil-chain", "--areas", "40"], "--areas 40"),
     ],
 )
-def test_bad_option_is_one_line_exit_2(tmp_path: Path, argv: list[str], message: str) -> None:
+def test_bad_input_is_one_line_exit_2(tmp_path: Path, argv: list[str], message: str) -> None:
     out = tmp_path / "never"
     line = input_error(run_clm([*argv, *(["--out", str(out)] if argv != ["simulate"] else [])]))
-    assert line.startswith("clm simulate: error: ") and message in line
+    assert line.startswith(f"clm {argv[0]}: error: ") and message in line
     assert not out.exists()
 
 

@@ -71,9 +71,10 @@ def test_demo_refuses_an_existing_output(tmp_path: Path) -> None:
     # the launcher itself refuses the existing bag unless told to overwrite it
     from clm_ros.errors import ClmRosError
     from clm_ros.launcher import run_demo
+    from clm_ros.run_settings import RunSettings
 
     with pytest.raises(ClmRosError, match="demo_bag: exists"):
-        run_demo(out, duration=0.1)
+        run_demo(out, RunSettings(duration=0.1))
 
 
 def test_simulate_bag_storage_is_one_option(tmp_path: Path) -> None:

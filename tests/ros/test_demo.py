@@ -23,9 +23,10 @@ from tests.clitools import run_clm
 
 def test_demo_end_to_end(tmp_path: Path, ros_domain_id: int) -> None:
     from clm_ros.launcher import TOPICS, run_demo
+    from clm_ros.run_settings import RunSettings
 
     out = tmp_path / "demo"
-    s = run_demo(out, duration=1.0, domain_id=ros_domain_id, hold_domain=False, timeout=240)
+    s = run_demo(out, RunSettings(duration=1.0, domain_id=ros_domain_id), hold_domain=False, timeout=240)
     assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(s))
     counts = s["message_counts"]
     assert set(counts) == set(TOPICS)
@@ -60,14 +61,13 @@ def test_demo_domain_printed_first_and_refused_when_held(tmp_path: Path, ros_dom
 
 def test_demo_domain_default_is_the_settings() -> None:
     import argparse
-    import inspect
 
     from clm_ros.commands.demo import register
-    from clm_ros.launcher import run_demo
+    from clm_ros.run_settings import RunSettings
 
     from clm_core import settings
 
-    assert inspect.signature(run_demo).parameters["domain_id"].default == settings.DOMAIN_ID.default == 42
+    assert RunSettings().domain_id == settings.DOMAIN_ID.default == 42
     sub = argparse.ArgumentParser().add_subparsers()
     register(sub)
     assert sub.choices["demo"].parse_args([]).domain_id == settings.DOMAIN_ID.default

@@ -29,13 +29,14 @@ N_MSG = round(DURATION * 1000) + 1
 
 def test_fleet_two_pairs_correct_and_summarised(tmp_path: Path, ros_domain_id: int) -> None:
     from clm_ros.fleet import PAIR_TOPICS, run_fleet
+    from clm_ros.run_settings import RunSettings
 
     from clm_core import settings
     from clm_core.io.bags import BagReader
 
     out = tmp_path / "fleet"
-    s = run_fleet(out, trains=2, first_index=3, duration=DURATION, domain_id=ros_domain_id, hold_domain=False,
-                  timeout=240, progress=False)
+    s = run_fleet(out, RunSettings(duration=DURATION, domain_id=ros_domain_id), trains=2, first_index=3,
+                  hold_domain=False, timeout=240, progress=False)
     assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(s))
     seed = settings.SEED.default
     assert set(s["trains"]) == {"train_3", "train_4"} and s["seeds"] == [seed + 3, seed + 4]
@@ -77,9 +78,10 @@ def test_fleet_two_pairs_correct_and_summarised(tmp_path: Path, ros_domain_id: i
 def test_fleet_pair_process_same_answers(tmp_path: Path, ros_domain_id: int) -> None:
     """``pair_process``: the pair's two nodes in one process (clm_ros.fleet_pair); the same topics and checks."""
     from clm_ros.fleet import run_fleet
+    from clm_ros.run_settings import RunSettings
 
-    s = run_fleet(tmp_path / "f", trains=1, duration=DURATION, domain_id=ros_domain_id, hold_domain=False,
-                  timeout=240, progress=False, pair_process=True)
+    s = run_fleet(tmp_path / "f", RunSettings(duration=DURATION, domain_id=ros_domain_id), trains=1,
+                  hold_domain=False, timeout=240, progress=False, pair_process=True)
     t = s["trains"]["train_0"]
     assert s["pair_process"] and s["exit_codes"] == {"/train_0/pair": 0} and t["exit_codes"] == {"pair": 0}
     assert t["messages_in"] == t["messages_out"] == t["feedback_total"] == N_MSG and t["in_equals_out"]
@@ -102,13 +104,18 @@ def test_fleet_bad_arguments(tmp_path: Path, args: list[str], message: str) -> N
 def test_fleet_bad_arguments_in_python(tmp_path: Path) -> None:
     from clm_ros.errors import ClmRosError
     from clm_ros.fleet import run_fleet
+    from clm_ros.run_settings import RunSettings
+
+    from clm_core.errors import ParameterError
 
     for kw, message in (({"trains": 0}, "trains = 0: must be 1 to 100"),
-                        ({"duration": -0.5}, "duration = -0.5: must be 0.001 to 3600 s"),
+                        ({"first_index": -1}, "first_index = -1: must be 0 to 10000"),
                         ({"record": False}, "verify needs the recorded wheel loads"),
                         ({"discovery_range": "LAN"}, "discovery_range = 'LAN': one of LOCALHOST, SUBNET")):
         with pytest.raises(ClmRosError, match=message):
             run_fleet(tmp_path / "f", **kw)  # type: ignore[arg-type]
+    with pytest.raises(ParameterError, match="duration = -0.5: must be 0.001 to 3600 s"):
+        run_fleet(tmp_path / "f", RunSettings(duration=-0.5))
     assert not (tmp_path / "f").exists()
 
 

@@ -8,14 +8,15 @@ bag by :func:`clm_ros.launcher.analyse_bag`, no DDS involved.
 
 from __future__ import annotations
 
-import inspect
 from pathlib import Path
 
 import numpy as np
 import pytest
-from clm_ros.launcher import analyse_bag, run_demo
+from clm_ros.launcher import analyse_bag
+from clm_ros.run_settings import NAMES, RunSettings
 from matplotlib.figure import Figure
 
+from clm_core.errors import ParameterError
 from clm_core.io import plots
 from clm_core.settings import SETTINGS
 from tests.io.figure_checks import figure_problems, png_problems
@@ -25,12 +26,33 @@ REPO = Path(__file__).resolve().parents[2]
 DEMO_BAG = REPO / "bags" / "demo" / "demo_bag"
 
 
-def test_run_demo_defaults_are_the_schema_defaults() -> None:
-    sig = inspect.signature(run_demo).parameters
-    names = {"rate_hz": "rate"}
-    for p in ("vehicle", "speed", "duration", "track", "soil", "model", "rate_hz", "dt", "n_sleepers",
-              "irregularity", "seed", "closed_loop", "storage"):
-        assert sig[p].default == SETTINGS[names.get(p, p)].default, p
+def test_run_settings_defaults_are_the_schema_defaults() -> None:
+    run = RunSettings()
+    assert NAMES == ("vehicle", "speed", "duration", "track", "soil", "model", "rate", "dt", "n_sleepers",
+                     "irregularity", "seed", "closed_loop", "storage", "domain_id")
+    for name in NAMES:
+        assert getattr(run, name) == SETTINGS[name].default, name
+
+
+def test_run_settings_are_checked_and_typed() -> None:
+    assert RunSettings(speed=60, seed=3.0).speed == 60.0 and isinstance(RunSettings(speed=60).speed, float)
+    assert isinstance(RunSettings(seed=3.0).seed, int)
+    for kw, message in (({"speed": -5.0}, "speed = -5: must be 0 to 150 m/s"),
+                        ({"model": "elastic"}, "model = 'elastic': must be one of"),
+                        ({"domain_id": 300}, "domain_id = 300: must be 0 to 232")):
+        with pytest.raises(ParameterError, match=message):
+            RunSettings(**kw)
+
+
+def test_run_settings_give_the_nodes_parameters() -> None:
+    run = RunSettings(speed=44.4, seed=7, rate=500.0, duration=2.0)
+    assert run.messages == 1001
+    assert run.track_parameters() == {"track": run.track, "soil": run.soil, "model": run.model, "dt": run.dt,
+                                      "n_sleepers": run.n_sleepers, "diagnostics_period": 0.5}
+    v = run.vehicle_parameters(seed_offset=3, wait_for_subscribers=1)
+    assert v["speed"] == 44.4 and v["seed"] == 10 and v["rate"] == 500.0 and v["wait_for_subscribers"] == 1
+    assert v["trains"] == 1 and v["exit_when_done"] is False
+    assert run.summary()["speed_m_per_s"] == 44.4 and run.summary()["rate_hz"] == 500.0
 
 
 @pytest.fixture(scope="module")

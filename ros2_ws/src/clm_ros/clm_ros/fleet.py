@@ -58,8 +58,9 @@ import numpy as np
 from clm_core import settings
 from clm_core.io.history import write_json
 from clm_ros.errors import ClmRosError
-from clm_ros.launcher import POLL, _number, _stop, setting_default
+from clm_ros.launcher import POLL, _number, _stop
 from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env
+from clm_ros.run_settings import RunSettings
 
 #: Namespace of pair ``i``: ``/train_i``.
 NAMESPACE = "train_{}"
@@ -78,11 +79,11 @@ def namespaces(trains: int, first_index: int = 0) -> list[str]:
     return [f"/{NAMESPACE.format(i)}" for i in range(first_index, first_index + trains)]
 
 
-def check_fleet(trains: int, first_index: int, duration: float) -> None:
+def check_fleet(trains: int, first_index: int) -> None:
     """Refuse a fleet that cannot run (ClmRosError naming the value and the rule)."""
-    for name, v in (("trains", trains), ("first_index", first_index), ("duration", duration)):
+    for name, v in (("trains", trains), ("first_index", first_index)):
         try:
-            settings.setting(f"fleet_{name}" if name != "duration" else name).check(v, name)
+            settings.setting(f"fleet_{name}").check(v, name)
         except Exception as exc:
             raise ClmRosError(str(exc)) from None
 
@@ -132,22 +133,10 @@ class _Watch:
 
 def run_fleet(
     out_dir: str | Path = "results/fleet",
+    run: RunSettings | None = None,
+    *,
     trains: int = 2,
     first_index: int = 0,
-    vehicle: str = setting_default(settings.VEHICLE),
-    speed: float = setting_default(settings.SPEED),
-    duration: float = setting_default(settings.DURATION),
-    track: str = setting_default(settings.TRACK),
-    soil: str = setting_default(settings.SOIL),
-    model: str = setting_default(settings.MODEL),
-    rate_hz: float = setting_default(settings.RATE),
-    dt: float = setting_default(settings.DT),
-    n_sleepers: int = setting_default(settings.N_SLEEPERS),
-    irregularity: str = setting_default(settings.IRREGULARITY),
-    seed: int = setting_default(settings.SEED),
-    closed_loop: bool = setting_default(settings.CLOSED_LOOP),
-    storage: str = setting_default(settings.STORAGE),
-    domain_id: int = setting_default(settings.DOMAIN_ID),
     hold_domain: bool = True,
     record: bool = True,
     verify: bool = True,
@@ -160,9 +149,11 @@ def run_fleet(
 ) -> dict[str, Any]:
     """Run ``trains`` vehicle + track node pairs; return the summary (also ``out_dir/summary.json``).
 
-    The defaults are the run settings of :mod:`clm_core.settings`. ``record``:
-    record the pairs' topics to ``out_dir/fleet_bag`` (needed by ``verify``,
-    the offline check). ``discovery_range``/``static_peers``: DDS discovery of
+    ``run``: what each pair runs (default: the run settings of
+    :mod:`clm_core.settings`; pair ``i`` with the irregularity seed
+    ``seed + i``), in the ROS domain ``run.domain_id``. ``record``: record the
+    pairs' topics to ``out_dir/fleet_bag`` (needed by ``verify``, the
+    offline check). ``discovery_range``/``static_peers``: DDS discovery of
     the node processes (docs/fleet.md: pairs on several hosts).
     ``pair_process``: each pair's two nodes in one process on one executor
     (:mod:`clm_ros.fleet_pair`) instead of two processes.
@@ -175,29 +166,23 @@ def run_fleet(
         pair's answers are wrong (counts, order, offline replay): the summary
         is written first.
     """
-    check_fleet(trains, first_index, duration)
-    settings.DOMAIN_ID.check(domain_id, "domain_id")
+    run = RunSettings() if run is None else run
+    check_fleet(trains, first_index)
     if verify and not record:
         raise ClmRosError("verify needs the recorded wheel loads: pass record (drop --no-record) or --no-verify")
     bag = Path(out_dir) / "fleet_bag"
     if bag.exists() and not overwrite:
         raise ClmRosError(f"{bag}: exists; choose another output directory or pass overwrite (--overwrite)")
-    env = fleet_env(domain_id, discovery_range, static_peers)  # checks the range before anything starts
-    run: dict[str, Any] = dict(
-        out_dir=out_dir, trains=trains, first_index=first_index, vehicle=vehicle, speed=speed, duration=duration,
-        track=track, soil=soil, model=model, rate_hz=rate_hz, dt=dt, n_sleepers=n_sleepers,
-        irregularity=irregularity, seed=seed, closed_loop=closed_loop, storage=storage, record=record,
-        verify=verify, timeout=timeout, progress=progress, pair_process=pair_process,
-    )
+    env = fleet_env(run.domain_id, discovery_range, static_peers)  # checks the range before anything starts
+    kw: dict[str, Any] = dict(trains=trains, first_index=first_index, record=record, verify=verify, timeout=timeout,
+                              progress=progress, pair_process=pair_process)
     if not hold_domain:
-        return _run_fleet(domain_id, env, **run)
-    with hold_domain_id(domain_id) as dom:
-        return _run_fleet(dom, env, **run)
+        return _run_fleet(run.domain_id, env, Path(out_dir), run, **kw)
+    with hold_domain_id(run.domain_id) as dom:
+        return _run_fleet(dom, env, Path(out_dir), run, **kw)
 
 
-def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: int, first_index: int,
-               vehicle: str, speed: float, duration: float, track: str, soil: str, model: str, rate_hz: float,
-               dt: float, n_sleepers: int, irregularity: str, seed: int, closed_loop: bool, storage: str,
+def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, trains: int, first_index: int,
                record: bool, verify: bool, timeout: float, progress: bool, pair_process: bool) -> dict[str, Any]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -207,7 +192,6 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
     from clm_core.progress import Progress
     from clm_ros.bag_tools import BagRecorder
 
-    out = Path(out_dir)
     bag = out / "fleet_bag"
     if bag.exists():
         shutil.rmtree(bag)
@@ -216,14 +200,12 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
     if "ROS_STATIC_PEERS" in env:
         os.environ["ROS_STATIC_PEERS"] = env["ROS_STATIC_PEERS"]
     pairs = [_Pair(ns) for ns in namespaces(trains, first_index)]
-    track_params = {"track": track, "soil": soil, "model": model, "dt": dt, "n_sleepers": n_sleepers,
-                    "diagnostics_period": 0.5}
-    n_expected = round(duration * rate_hz) + 1
+    track_params = run.track_parameters()
     logs: dict[str, Any] = {}
     ctx = Context()
     rclpy.init(context=ctx, domain_id=dom)
     watch = _Watch(pairs)
-    bar = Progress(n_expected * trains if progress else None, "clm fleet", unit="msg")
+    bar = Progress(run.messages * trains if progress else None, "clm fleet", unit="msg")
     nodes: list[Any] = []
     rec: BagRecorder | None = None
     summary: dict[str, Any] = {}
@@ -246,12 +228,7 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
                                       f"see {out}/{pair.ns.strip('/')}_{kind}.log")
 
     def vehicle_params(i: int) -> dict[str, Any]:
-        return {
-            "vehicle": vehicle, "speed": float(speed), "duration": float(duration), "rate": float(rate_hz),
-            "irregularity": irregularity, "seed": int(seed) + first_index + i, "closed_loop": closed_loop,
-            "track": track, "soil": soil, "model": model, "trains": 1, "exit_when_done": False,
-            "wait_for_subscribers": 2 if record else 1, "diagnostics_period": 0.5,
-        }
+        return run.vehicle_parameters(seed_offset=first_index + i, wait_for_subscribers=2 if record else 1)
 
     try:
         for i, pair in enumerate(pairs):
@@ -269,7 +246,7 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
             nodes.append(recorder)
             topics = {f"{p.ns}/{t}": m for p in pairs for t, m in PAIR_TOPICS.items()}
             rec = BagRecorder(recorder, bag, {**topics, "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray"},
-                              storage=storage, polled=True)
+                              storage=run.storage, polled=True)
 
         def spin_for(seconds: float) -> None:
             end = time.monotonic() + seconds
@@ -336,7 +313,7 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
         if record:
             t.update(_bag_figures(bag, p.ns))
         if verify:
-            t.update(_offline_check(bag, p.ns, track, soil, model, dt, n_sleepers))
+            t.update(_offline_check(bag, p.ns, run))
         t["correct"] = bool(t["in_equals_out"] and t.get("offline_equal", True))
         per_train[p.ns.strip("/")] = t
     summary.update({
@@ -344,11 +321,9 @@ def _run_fleet(dom: int, env: dict[str, str], *, out_dir: str | Path, trains: in
         "overall": _overall(per_train),
         "exit_codes": codes,
         "loadavg": list(os.getloadavg()),
-        "n_trains": trains, "first_index": first_index, "vehicle": vehicle, "speed_m_per_s": speed,
-        "duration_s": duration, "track": track, "soil": soil, "model": model, "rate_hz": rate_hz, "dt_s": dt,
-        "n_sleepers": n_sleepers, "irregularity": irregularity, "seeds": [seed + first_index + i for i in
-                                                                          range(trains)],
-        "closed_loop": closed_loop, "bag": str(bag) if record else None, "ros_domain_id": dom,
+        "n_trains": trains, "first_index": first_index, **run.summary(),
+        "seeds": [run.seed + first_index + i for i in range(trains)],
+        "bag": str(bag) if record else None, "ros_domain_id": dom,
         "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"], "pair_process": pair_process,
     })
     write_json(out / "summary.json", summary)
@@ -422,17 +397,15 @@ def _bag_figures(bag: Path, ns: str) -> dict[str, Any]:
     }
 
 
-def _offline_check(bag: Path, ns: str, track: str, soil: str, model: str, dt: float,
-                   n_sleepers: int) -> dict[str, Any]:
+def _offline_check(bag: Path, ns: str, run: RunSettings) -> dict[str, Any]:
     """Replay pair ``ns``'s recorded wheel loads offline; compare its recorded answers with the replay's."""
     from clm_core.io.bags import BagReader
     from clm_core.online import OnlineTrackModel
-    from clm_core.params import SOIL_MODELS, SoilModel, load_model
+    from clm_core.params import SoilModel, load_model
     from clm_ros.replay import replay_bag
 
-    if model not in SOIL_MODELS:
-        raise ClmRosError(f"model = {model!r}: one of {', '.join(SOIL_MODELS)}")
-    m = OnlineTrackModel(load_model(track, soil, cast(SoilModel, model)), dt=dt, n_sleepers=n_sleepers)
+    m = OnlineTrackModel(load_model(run.track, run.soil, cast(SoilModel, run.model)), dt=run.dt,
+                         n_sleepers=run.n_sleepers)
     with tempfile.TemporaryDirectory(prefix="clm_fleet_") as tmp:
         stats = replay_bag(bag, Path(tmp) / "offline", m, topic=f"{ns}/wheel_loads", out_prefix=ns)
 

@@ -1,9 +1,11 @@
 """What the launch files of clm_ros share: their common arguments and how the nodes are made from them.
 
-Used by ``launch/demo.launch.py``, ``launch/track.launch.py`` and
-``launch/replay.launch.py`` (``ros2 launch clm_ros ...`` in a full ROS 2
-install). ``launch``/``launch_ros`` are imported inside the functions: this
-module imports without them (they are not installable from PyPI; the
+Used by ``launch/demo.launch.py``, ``launch/fleet.launch.py``,
+``launch/track.launch.py`` and ``launch/replay.launch.py`` (``ros2 launch
+clm_ros ...`` in a full ROS 2 install): each declares its description with
+:func:`launch_description` (the common arguments, its own, its nodes).
+``launch``/``launch_ros`` are imported inside the functions: this module
+imports without them (they are not installable from PyPI; the
 packaging test runs the launch files against stand-ins of their classes).
 
 Common launch arguments
@@ -27,6 +29,7 @@ log_level
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from typing import Any
 
 #: Presets given as launch arguments; empty: the parameter file's value.
@@ -77,6 +80,39 @@ def vehicle_arguments() -> list[Any]:
 def vehicle_settings(context: Any) -> dict[str, Any]:
     """The :data:`VEHICLE_SETTINGS` given at launch, typed (those left empty are not in it)."""
     return {k: t(value(context, k)) for k, t in VEHICLE_SETTINGS.items() if value(context, k)}
+
+
+def launch_description(
+    nodes: Callable[[Any], list[Any]],
+    params_description: str,
+    own: Mapping[str, tuple[str, str]],
+    *,
+    vehicle: bool = False,
+) -> Any:
+    """The ``LaunchDescription`` of a clm_ros launch file.
+
+    Parameters
+    ----------
+    nodes : callable
+        Makes the launch's actions from its launch context (an ``OpaqueFunction``).
+    params_description : str
+        Description of the ``params_file`` argument (which nodes it configures).
+    own : mapping
+        The file's own arguments, ``{name: (default, description)}``, declared
+        after the common ones (:func:`arguments`).
+    vehicle : bool
+        Also declare the vehicle's arguments (:func:`vehicle_arguments`).
+    """
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument, OpaqueFunction
+
+    return LaunchDescription([
+        *arguments(params_description),
+        *(vehicle_arguments() if vehicle else []),
+        *[DeclareLaunchArgument(name, default_value=default, description=text)
+          for name, (default, text) in own.items()],
+        OpaqueFunction(function=nodes),
+    ])
 
 
 def value(context: Any, name: str) -> str:

@@ -45,11 +45,10 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
-from clm_core import settings
 from clm_core.io.history import write_json
 from clm_core.io.report_index import write_index
 from clm_core.peaks import masked_max, peak_window
@@ -57,12 +56,13 @@ from clm_core.progress import Progress
 from clm_ros.errors import ClmRosError
 from clm_ros.launch_common import DEMO_MONITORED_SLEEPERS, LIVE_VIEWS
 from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env, stop_processes
+from clm_ros.run_settings import RunSettings
 
-#: What the demo records: the data topics, the window's markers (10 Hz) and /diagnostics. Not the monitored
-#: sleepers: one more 1-kHz topic for the recorder, and their series are in /sleeper_response (live views only).
 #: How often the recorder takes the messages that have arrived [s] (their log times are their reception times).
 POLL = 0.005
 
+#: What the demo records: the data topics, the window's markers (10 Hz) and /diagnostics. Not the monitored
+#: sleepers: one more 1-kHz topic for the recorder, and their series are in /sleeper_response (live views only).
 TOPICS = {
     "/wheel_loads": "clm_msgs/msg/WheelLoads",
     "/sleeper_response": "clm_msgs/msg/SleeperResponse",
@@ -71,44 +71,24 @@ TOPICS = {
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 
-_V = TypeVar("_V", float, int, str, bool)
-
-
-def setting_default(setting: settings.Setting[_V]) -> _V:
-    """The default of a run setting that has one (not automatic), as its own type."""
-    if setting.default is None:
-        raise ClmRosError(f"setting {setting.name} has no default (automatic: {setting.none_means})")
-    return setting.default
-
 
 def run_demo(
     out_dir: str | Path = "results/demo",
-    vehicle: str = setting_default(settings.VEHICLE),
-    speed: float = setting_default(settings.SPEED),
-    duration: float = setting_default(settings.DURATION),
-    track: str = setting_default(settings.TRACK),
-    soil: str = setting_default(settings.SOIL),
-    model: str = setting_default(settings.MODEL),
-    rate_hz: float = setting_default(settings.RATE),
-    dt: float = setting_default(settings.DT),
-    n_sleepers: int = setting_default(settings.N_SLEEPERS),
-    irregularity: str = setting_default(settings.IRREGULARITY),
-    seed: int = setting_default(settings.SEED),
-    closed_loop: bool = setting_default(settings.CLOSED_LOOP),
-    storage: str = setting_default(settings.STORAGE),
-    domain_id: int = setting_default(settings.DOMAIN_ID),
+    run: RunSettings | None = None,
+    *,
     hold_domain: bool = True,
     timeout: float = 300.0,
     overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run the demo; return the summary (also written to ``out_dir/summary.json``).
 
-    The defaults are the run settings of :mod:`clm_core.settings`.
-    ``domain_id`` is held exclusively among the clm runs of this machine
-    while the demo runs (:func:`clm_ros.processes.hold_domain_id`; a caller
-    that holds it already passes ``hold_domain=False``). An existing bag in
-    ``out_dir`` is refused unless ``overwrite``. A progress bar shows the
-    recorded wheel-load messages on a terminal.
+    ``run``: what the pair runs (default: the run settings of
+    :mod:`clm_core.settings`). Its ``domain_id`` is held exclusively among
+    the clm runs of this machine while the demo runs
+    (:func:`clm_ros.processes.hold_domain_id`; a caller that holds it already
+    passes ``hold_domain=False``). An existing bag in ``out_dir`` is refused
+    unless ``overwrite``. A progress bar shows the recorded wheel-load
+    messages on a terminal.
 
     Raises
     ------
@@ -116,19 +96,14 @@ def run_demo(
         The domain is in use, a node failed or exited early or did not exit
         cleanly, or the run did not finish within ``timeout`` s.
     """
+    run = RunSettings() if run is None else run
     bag = Path(out_dir) / "demo_bag"
     if bag.exists() and not overwrite:
         raise ClmRosError(f"{bag}: exists; choose another output directory or pass overwrite (--overwrite)")
-    settings.DOMAIN_ID.check(domain_id, "domain_id")
-    run = dict(
-        out_dir=out_dir, vehicle=vehicle, speed=speed, duration=duration, track=track, soil=soil, model=model,
-        rate_hz=rate_hz, dt=dt, n_sleepers=n_sleepers, irregularity=irregularity, seed=seed,
-        closed_loop=closed_loop, storage=storage, timeout=timeout,
-    )
     if not hold_domain:
-        return _run_demo(domain_id, **run)  # type: ignore[arg-type]
-    with hold_domain_id(domain_id) as dom:
-        return _run_demo(dom, **run)  # type: ignore[arg-type]
+        return _run_demo(run.domain_id, out_dir, run, timeout)
+    with hold_domain_id(run.domain_id) as dom:
+        return _run_demo(dom, out_dir, run, timeout)
 
 
 class _Watch:
@@ -151,24 +126,7 @@ class _Watch:
                 self.track_count += 1
 
 
-def _run_demo(
-    dom: int,
-    out_dir: str | Path,
-    vehicle: str,
-    speed: float,
-    duration: float,
-    track: str,
-    soil: str,
-    model: str,
-    rate_hz: float,
-    dt: float,
-    n_sleepers: int,
-    irregularity: str,
-    seed: int,
-    closed_loop: bool,
-    storage: str,
-    timeout: float,
-) -> dict[str, Any]:
+def _run_demo(dom: int, out_dir: str | Path, run: RunSettings, timeout: float) -> dict[str, Any]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.context import Context
@@ -185,23 +143,16 @@ def _run_demo(
     out.mkdir(parents=True, exist_ok=True)
     env = ros_env(dom)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    track_params = {"track": track, "soil": soil, "model": model, "dt": dt, "n_sleepers": n_sleepers,
-                    "diagnostics_period": 0.5, "monitored_sleepers": DEMO_MONITORED_SLEEPERS}
+    track_params = {**run.track_parameters(), "monitored_sleepers": DEMO_MONITORED_SLEEPERS}
     # one train, then the vehicle idles until stopped here; it waits for the track node and this recorder
-    vehicle_params = {
-        "vehicle": vehicle, "speed": float(speed), "duration": float(duration), "rate": float(rate_hz),
-        "irregularity": irregularity, "seed": int(seed), "closed_loop": closed_loop, "track": track,
-        "soil": soil, "model": model, "trains": 1, "exit_when_done": False, "wait_for_subscribers": 2,
-        "diagnostics_period": 0.5,
-    }
-    n_expected = round(duration * rate_hz) + 1
+    vehicle_params = run.vehicle_parameters(wait_for_subscribers=2)
     logs = {name: open(out / f"{name}.log", "w") for name in ("track_node", "vehicle_node")}
     procs: dict[str, subprocess.Popen[bytes]] = {}
     ctx = Context()
     rclpy.init(context=ctx, domain_id=dom)
     summary: dict[str, Any] = {}
     watch = _Watch()
-    bar = Progress(n_expected, "clm demo", unit="msg")
+    bar = Progress(run.messages, "clm demo", unit="msg")
     nodes: list[Any] = []
     try:
         procs["track_node"] = subprocess.Popen(
@@ -227,7 +178,7 @@ def _run_demo(
                 raise ClmRosError(f"{name.replace('_', ' ')} exited early with code {procs[name].returncode}; "
                                   f"see {out}/{name}.log")
 
-        rec = BagRecorder(node, bag, TOPICS, storage=storage, polled=True)
+        rec = BagRecorder(node, bag, TOPICS, storage=run.storage, polled=True)
         watcher.create_subscription(DiagnosticArray, "/diagnostics", watch.on_diagnostics, 50)
         # the answers reach the bag from the first one only if the recorder's readers have matched the track node's
         # publishers before the train starts (volatile topics: nothing is kept for a late reader); the vehicle
@@ -288,26 +239,9 @@ def _run_demo(
         "exit_codes": codes,
         "loadavg": list(os.getloadavg()),
     })
-    summary.update(
-        {
-            "vehicle": vehicle,
-            "speed_m_per_s": speed,
-            "duration_s": duration,
-            "track": track,
-            "soil": soil,
-            "model": model,
-            "rate_hz": rate_hz,
-            "dt_s": dt,
-            "n_sleepers": n_sleepers,
-            "irregularity": irregularity,
-            "seed": seed,
-            "closed_loop": closed_loop,
-            "bag": str(bag),
-            "ros_domain_id": dom,
-        }
-    )
+    summary.update({**run.summary(), "bag": str(bag), "ros_domain_id": dom})
     write_json(out / "summary.json", summary)
-    write_index(out, title=f"clm demo: {vehicle} at {speed:g} m/s on {track} / {soil} ({model})")
+    write_index(out, title=f"clm demo: {run.vehicle} at {run.speed:g} m/s on {run.track} / {run.soil} ({run.model})")
     bad = {k: c for k, c in codes.items() if c != 0}
     if bad:  # the run is recorded and plotted; the exit is still an error
         raise ClmRosError(f"node(s) did not exit cleanly on SIGINT: {bad}; see the logs in {out}/")

@@ -38,7 +38,7 @@ bag : output bag directory of the recorder (default clm_demo_bag).
 
 from clm_ros import launch_common as common
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, ExecuteProcess, OpaqueFunction, RegisterEventHandler
+from launch.actions import EmitEvent, ExecuteProcess, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 
@@ -73,11 +73,8 @@ def nodes(context):  # type: ignore[no-untyped-def]
 
 
 def generate_launch_description() -> LaunchDescription:
-    return LaunchDescription([
-        *common.arguments("ROS parameter file of both nodes"),
-        *common.vehicle_arguments(),
-        DeclareLaunchArgument("trains", default_value="1", description="trains before the launch ends"),
-        DeclareLaunchArgument("record", default_value="false", description="also run ros2 bag record"),
-        DeclareLaunchArgument("bag", default_value="clm_demo_bag", description="output bag of the recorder"),
-        OpaqueFunction(function=nodes),
-    ])
+    return common.launch_description(nodes, "ROS parameter file of both nodes", {
+        "trains": ("1", "trains before the launch ends"),
+        "record": ("false", "also run ros2 bag record"),
+        "bag": ("clm_demo_bag", "output bag of the recorder"),
+    }, vehicle=True)

@@ -31,7 +31,7 @@ from typing import Any
 
 from clm_ros import launch_common as common
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.actions import EmitEvent, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 
@@ -76,13 +76,9 @@ def nodes(context):  # type: ignore[no-untyped-def]
 
 
 def generate_launch_description() -> LaunchDescription:
-    return LaunchDescription([
-        *common.arguments("ROS parameter file of every node"),
-        *common.vehicle_arguments(),
-        DeclareLaunchArgument("trains", default_value="2", description="vehicle + track node pairs"),
-        DeclareLaunchArgument("first_index", default_value="0", description="index of the first pair /train_i"),
-        DeclareLaunchArgument("seed", default_value="", description="irregularity seed of pair 0 (pair i: + i); "
-                              "empty: the parameter file's"),
-        DeclareLaunchArgument("runs", default_value="1", description="trains run by each vehicle"),
-        OpaqueFunction(function=nodes),
-    ])
+    return common.launch_description(nodes, "ROS parameter file of every node", {
+        "trains": ("2", "vehicle + track node pairs"),
+        "first_index": ("0", "index of the first pair /train_i"),
+        "seed": ("", "irregularity seed of pair 0 (pair i: + i); empty: the parameter file's"),
+        "runs": ("1", "trains run by each vehicle"),
+    }, vehicle=True)

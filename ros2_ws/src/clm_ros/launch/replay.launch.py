@@ -24,14 +24,7 @@ out : bag of the answers (``ros2 bag record``); empty (the default): none.
 
 from clm_ros import launch_common as common
 from launch import LaunchDescription
-from launch.actions import (
-    DeclareLaunchArgument,
-    EmitEvent,
-    ExecuteProcess,
-    OpaqueFunction,
-    RegisterEventHandler,
-    TimerAction,
-)
+from launch.actions import EmitEvent, ExecuteProcess, RegisterEventHandler, TimerAction
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 
@@ -63,10 +56,8 @@ def nodes(context):  # type: ignore[no-untyped-def]
 
 
 def generate_launch_description() -> LaunchDescription:
-    return LaunchDescription([
-        *common.arguments("ROS parameter file of the track node"),
-        DeclareLaunchArgument("bag", default_value="", description="the bag to play (required)"),
-        DeclareLaunchArgument("rate", default_value="1.0", description="playback rate"),
-        DeclareLaunchArgument("out", default_value="", description="bag of the answers (empty: none)"),
-        OpaqueFunction(function=nodes),
-    ])
+    return common.launch_description(nodes, "ROS parameter file of the track node", {
+        "bag": ("", "the bag to play (required)"),
+        "rate": ("1.0", "playback rate"),
+        "out": ("", "bag of the answers (empty: none)"),
+    })

@@ -26,7 +26,6 @@ autostart : configure and activate at start (default true; false for a
 
 from clm_ros import launch_common as common
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
 
 
 def nodes(context):  # type: ignore[no-untyped-def]
@@ -35,10 +34,7 @@ def nodes(context):  # type: ignore[no-untyped-def]
 
 
 def generate_launch_description() -> LaunchDescription:
-    return LaunchDescription([
-        *common.arguments("ROS parameter file of the track node"),
-        DeclareLaunchArgument("node_name", default_value="clm_track_node", description="node name"),
-        DeclareLaunchArgument("autostart", default_value="true",
-                              description="configure and activate at start (false: lifecycle manager)"),
-        OpaqueFunction(function=nodes),
-    ])
+    return common.launch_description(nodes, "ROS parameter file of the track node", {
+        "node_name": ("clm_track_node", "node name"),
+        "autostart": ("true", "configure and activate at start (false: lifecycle manager)"),
+    })

@@ -8,23 +8,26 @@ import signal
 import time
 from typing import Any
 
+from clm_core.commands._common import add_command
+from clm_core.commands._options import add_setting
+
 
 def register(sub: Any) -> None:
     """Add the ``record`` and ``play`` sub-commands."""
-    r = sub.add_parser(
-        "record",
+    r = add_command(
+        sub, "record", run_record,
         help="record topics to a rosbag2 bag (mcap or sqlite3)",
         description="Raw subscriptions (reliable, keep-all) written to a bag until Ctrl-C, --duration or --count.",
     )
     r.add_argument("topics", nargs="+", help="TOPIC or TOPIC:TYPE (type default: discovered on the graph)")
     r.add_argument("--out", required=True, help="output bag directory (must not exist; appears when recording stops)")
-    r.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])
+    add_setting(r, "storage")
     r.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     r.add_argument("--count", type=int, default=None, help="stop after this many messages on the first topic")
     r.add_argument("--discovery-timeout", type=float, default=20.0, help="wait for topic types [s]")
-    r.set_defaults(func=run_record)
-    p = sub.add_parser(
-        "play", help="publish a bag's messages (real time, scaled, or flow-controlled)",
+    p = add_command(
+        sub, "play", run_play,
+        help="publish a bag's messages (real time, scaled, or flow-controlled)",
         description="Publishes the messages of a rosbag2 bag (mcap or sqlite3) on their topics, with their "
         "recorded timing (--rate 1), scaled (--rate 2: twice as fast), or as fast as a node answers them "
         "(--rate 0: at most --max-in-flight messages without an answer on --ack-topic). Prints the counts sent.",
@@ -37,7 +40,6 @@ def register(sub: Any) -> None:
                    help="--rate 0: messages published ahead of their answers (default 20)")
     p.add_argument("--allow-partial", action="store_true",
                    help="play what is left of a damaged bag (missing messages, damaged chunks) instead of refusing it")
-    p.set_defaults(func=run_play)
 
 
 def _init() -> Any:

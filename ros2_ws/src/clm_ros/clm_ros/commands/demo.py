@@ -11,6 +11,7 @@ from typing import Any
 
 from clm_core.commands._common import add_command
 from clm_core.commands._options import add_overwrite
+from clm_ros.run_settings import NAMES
 
 
 def register(sub: Any) -> None:
@@ -20,8 +21,7 @@ def register(sub: Any) -> None:
         help="end-to-end demo: vehicle and track nodes over DDS, recorded and plotted",
         description="Starts the vehicle simulator node and the track-soil node as separate "
         "processes (loopback DDS), records the run to a bag and renders plots in --out.",
-        settings=("vehicle", "speed", "duration", "track", "soil", "model", "rate", "dt", "n_sleepers",
-                  "irregularity", "seed", "closed_loop", "storage", "domain_id"),
+        settings=NAMES,
     )
     p.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
@@ -32,29 +32,13 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo and print its summary."""
     from clm_core.commands._common import check_output, quantity
     from clm_ros.launcher import run_demo
+    from clm_ros.run_settings import RunSettings
 
     check_output(args.out, args.overwrite)
     print(f"demo: ROS domain {args.domain_id}, discovery on loopback; watch it live from another terminal with "
           f"ROS_DOMAIN_ID={args.domain_id} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (topics /wheel_loads, "
           "/sleeper_response, /wheel_rail_response, /diagnostics)", flush=True)
-    s = run_demo(
-        args.out,
-        vehicle=args.vehicle,
-        speed=args.speed,
-        duration=args.duration,
-        track=args.track,
-        soil=args.soil,
-        model=args.model,
-        rate_hz=args.rate,
-        dt=args.dt,
-        n_sleepers=args.n_sleepers,
-        irregularity=args.irregularity,
-        seed=args.seed,
-        closed_loop=args.closed_loop,
-        storage=args.storage,
-        domain_id=args.domain_id,
-        overwrite=args.overwrite,
-    )
+    s = run_demo(args.out, RunSettings.from_args(args), overwrite=args.overwrite)
     counts = s["message_counts"]
     used = 100.0 * s["feedback_used"] / s["feedback_total"] if s["feedback_total"] else 0.0
     print(f"demo: {counts.get('/wheel_loads', 0)} wheel-load messages, {counts.get('/sleeper_response', 0)} "

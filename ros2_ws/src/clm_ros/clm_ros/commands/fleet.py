@@ -13,6 +13,7 @@ from typing import Any
 
 from clm_core.commands._common import add_command
 from clm_core.commands._options import add_overwrite
+from clm_ros.run_settings import NAMES
 
 
 def register(sub: Any) -> None:
@@ -24,8 +25,7 @@ def register(sub: Any) -> None:
         "namespace /train_i, all in one ROS domain; records them to DIR/fleet_bag, checks every pair (each "
         "wheel-load message answered once, in order; answers equal to the offline replay of its recorded wheel "
         "loads) and writes per-train and overall figures to DIR/summary.json.",
-        settings=("fleet_trains", "fleet_first_index", "vehicle", "speed", "duration", "track", "soil", "model",
-                  "rate", "dt", "n_sleepers", "irregularity", "seed", "closed_loop", "storage", "domain_id"),
+        settings=("fleet_trains", "fleet_first_index", *NAMES),
     )
     p.add_argument("--out", default="results/fleet", help="output directory (default results/fleet)")
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
@@ -50,9 +50,10 @@ def run(args: argparse.Namespace) -> int:
     from clm_core.commands._common import check_output, quantity
     from clm_ros.errors import ClmRosError
     from clm_ros.fleet import check_fleet, namespaces, run_fleet
+    from clm_ros.run_settings import RunSettings
 
     try:
-        check_fleet(args.fleet_trains, args.fleet_first_index, args.duration)
+        check_fleet(args.fleet_trains, args.fleet_first_index)
     except ClmRosError as exc:
         print(f"clm fleet: error: {exc}", file=sys.stderr)
         return 2
@@ -63,10 +64,7 @@ def run(args: argparse.Namespace) -> int:
     record = args.record
     try:
         s = run_fleet(
-            args.out, trains=args.fleet_trains, first_index=args.fleet_first_index, vehicle=args.vehicle,
-            speed=args.speed, duration=args.duration, track=args.track, soil=args.soil, model=args.model,
-            rate_hz=args.rate, dt=args.dt, n_sleepers=args.n_sleepers, irregularity=args.irregularity,
-            seed=args.seed, closed_loop=args.closed_loop, storage=args.storage, domain_id=args.domain_id,
+            args.out, RunSettings.from_args(args), trains=args.fleet_trains, first_index=args.fleet_first_index,
             record=record, verify=args.verify and record, discovery_range=args.discovery_range,
             static_peers=args.static_peers, timeout=args.timeout, overwrite=args.overwrite,
             pair_process=args.pair_process,

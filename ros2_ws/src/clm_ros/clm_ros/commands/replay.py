@@ -6,15 +6,15 @@ import argparse
 import sys
 from typing import Any
 
-from clm_core.commands._common import add_model_arguments, add_window_arguments, model_from_args, quantity
+from clm_core.commands._common import add_command, add_model_arguments, add_window_arguments, model_from_args, quantity
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.settings import ONLINE_POLICY
 
 
 def register(sub: Any) -> None:
     """Add the ``replay`` sub-command."""
-    p = sub.add_parser(
-        "replay",
+    p = add_command(
+        sub, "replay", run,
         help="run a wheel-load bag through the track model offline, write the responses as a bag",
         description="Reads clm_msgs/WheelLoads from IN_BAG (mcap or sqlite3), runs them through the same "
         "code as the track node (no middleware, faster than real time) and writes OUT_BAG with the inputs "
@@ -35,7 +35,6 @@ def register(sub: Any) -> None:
     p.add_argument("--allow-partial", action="store_true",
                    help="replay what is left of a damaged input bag (missing messages or damaged chunks) instead of "
                    "refusing it; the damage is reported")
-    p.set_defaults(func=run)
 
 
 def _message_count(path: str, topic: str | None) -> int | None:
