@@ -102,13 +102,22 @@ class Driver:
             self.spin(0.02)
 
     def wait_discovery(self, timeout: float = 30.0) -> None:
-        """Until the node subscribes to wheel_loads (it is active) and its answers reach this driver."""
+        """Until the node subscribes to wheel_loads (it is active) and its answers reach this driver; with a
+        publisher here, also until the node's subscription has matched it (its ``/diagnostics`` say so):
+        discovery is two-sided, and what a writer publishes before the reader has matched it is lost to a
+        volatile reader (seen on a starved core: 0 answers to a 2000-message burst)."""
         topic = f"{self.ns}/wheel_loads"
         self.wait_for(
             lambda: ((self.pub.get_subscription_count() if self.pub else self.node.count_subscribers(topic)) >= 1
                      and self.node.count_publishers(f"{self.ns}/sleeper_response") >= 1
                      and self.node.count_publishers(f"{self.ns}/wheel_rail_response") >= 1),
             timeout, "discovery of the track node")
+        if self.pub is not None:
+            t_end = time.monotonic() + timeout
+            while int(self.latest_diagnostics(timeout).get("wheel_load_publishers_matched", "0")) < 1:
+                if time.monotonic() > t_end:
+                    raise TimeoutError(f"the track node matching this driver's wheel-load publisher not within "
+                                       f"{timeout} s")
 
     def send(self, msgs: Iterable[Any], expected_answers: int, max_in_flight: int = 50, timeout: float = 60.0) -> None:
         """Publish ``msgs`` keeping at most ``max_in_flight`` unanswered; wait for ``expected_answers`` answers."""

@@ -150,6 +150,7 @@ class TrackNode(LifecycleNode):
         self._requested_reliability: Any = None
         self._recreate = False
         self._peers = (-1, -1)
+        self._matched_publishers = 0  # wheel-load writers the subscription has matched (its own side of discovery)
         self._new_stream = False
         self._peer_lost = False
         self._last_markers = 0.0
@@ -435,8 +436,10 @@ class TrackNode(LifecycleNode):
         sub = self._sub
         if sub is None:
             self._peers = (-1, -1)
+            self._matched_publishers = 0
             return
         pubs = self.get_publishers_info_by_topic(sub.topic_name)
+        self._matched_publishers = sub.get_publisher_count()
         readers = self._pub_w.get_subscription_count() if self._pub_w is not None else 0
         peers = (len(pubs), readers)
         if peers != self._peers:
@@ -642,6 +645,7 @@ class TrackNode(LifecycleNode):
             "real_time_factor": f"{d_sim * 1e-9 / d_busy:.3f}" if d_busy > 0 else "nan",
             "data_path_cpu_us_per_message": f"{1e6 * d_cpu / d_msgs:.1f}" if d_msgs else "nan",
             "wheel_load_publishers": max(self._peers[0], 0),
+            "wheel_load_publishers_matched": self._matched_publishers,
             "answer_readers": max(self._peers[1], 0),
             "wheel_loads_reliability": self._reliability or "none",
             "sim_time_s": f"{model.time_ns / NS:.6f}" if model is not None and model.time_ns is not None else "nan",
