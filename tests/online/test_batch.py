@@ -110,3 +110,46 @@ def test_counters_carry_over_to_a_rebuilt_model(chunk: int) -> None:
     assert rebuilt.stats is m.stats and rebuilt.stats.accepted == before[0] + 19
     assert rebuilt.stats.rejected_total == before[1] == 1 and rebuilt.stats.steps > before[2]
     assert rebuilt.stats.resyncs == 2  # the new model starts its state at its first frame
+
+
+def _general_path_only(m: OnlineTrackModel) -> OnlineTrackModel:
+    """``m`` with the short path of a frame alone switched off: every frame through prepare / plan / run."""
+    m._one = lambda frame: None  # type: ignore[method-assign]
+    return m
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(scenarios())
+def test_the_short_path_of_a_frame_alone_equals_the_general_path(
+        sc: tuple[list[WheelFrame], list[int], dict[str, object]]) -> None:
+    """A frame alone (the node's common case) takes a short path (``OnlineTrackModel._one``): the same answers,
+    refusals, state and counters, bit for bit, as the general path, over streams with refusals of every kind."""
+    frames, _, kw = sc
+    short = OnlineTrackModel(PARAMS, dt=1e-4, n_sleepers=41, **kw)  # type: ignore[arg-type]
+    general = _general_path_only(OnlineTrackModel(PARAMS, dt=1e-4, n_sleepers=41, **kw))  # type: ignore[arg-type]
+    for k, f in enumerate(frames):
+        x, y = short.process_batch([f])[0], general.process_batch([f])[0]
+        assert same(x, y), (k, x, y)
+        assert state(short) == state(general) and short.stats == general.stats, k
+
+
+def test_the_short_path_takes_decoded_frames() -> None:
+    """Frames as the CDR decoder gives them (the node's) take the short path, with the general path's answers."""
+    from clm_core.io.messages import encode_wheel_loads, frame_from_cdr
+
+    frames = [frame_from_cdr(encode_wheel_loads(f.stamp_ns, "track", f.ids, f.positions, f.forces))
+              for f in stream(60, t0=WALL, v=83.33)]
+    short = OnlineTrackModel(PARAMS)
+    general = _general_path_only(OnlineTrackModel(PARAMS))
+    one, taken = short._one, []
+
+    def counted(frame: WheelFrame) -> object:
+        r = one(frame)
+        taken.append(r is not None)
+        return r
+
+    short._one = counted  # type: ignore[method-assign]
+    for f in frames:
+        assert same(short.process_batch([f])[0], general.process_batch([f])[0])
+    assert taken == [False] + [True] * (len(frames) - 1)  # all but the first (it starts the state)
+    assert state(short) == state(general) and short.stats == general.stats
