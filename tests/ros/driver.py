@@ -104,8 +104,8 @@ class Driver:
     def wait_discovery(self, timeout: float = 30.0) -> None:
         """Until the node subscribes to wheel_loads (it is active) and its answers reach this driver; with a
         publisher here, also until the node's subscription has matched it (its ``/diagnostics`` say so):
-        discovery is two-sided, and what a writer publishes before the reader has matched it is lost to a
-        volatile reader (seen on a starved core: 0 answers to a 2000-message burst)."""
+        discovery is two-sided, and what a writer publishes before the reader has matched it may be lost to
+        a volatile reader (seen twice on a starved core, before this wait: 0 answers to a 2000-message burst)."""
         topic = f"{self.ns}/wheel_loads"
         self.wait_for(
             lambda: ((self.pub.get_subscription_count() if self.pub else self.node.count_subscribers(topic)) >= 1
