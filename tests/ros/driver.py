@@ -82,7 +82,7 @@ class Driver:
         self.received_at.append(time.monotonic())
 
     def _on_diagnostics(self, msg: Any) -> None:
-        if any(st.name.startswith(NODE.strip("/")) for st in msg.status):
+        if any(st.name.startswith(f"{self.ns}{NODE}: ") for st in msg.status):
             self.diagnostics.append((time.monotonic(), msg))
 
     def subscribe(self, msg_type: Any, topic: str, qos: QoSProfile | int = QOS, raw: bool = False) -> list[Any]:

@@ -105,7 +105,7 @@ class Client(ClientNode):
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for st in msg.status:
-            mine = st.name.startswith("clm_calibration_node")
+            mine = st.name.startswith("/clm_calibration_node: ")
             (self.diagnostics if mine else self.others).append((time.monotonic(), st))
 
     def ready(self) -> None:

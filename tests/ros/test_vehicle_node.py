@@ -285,3 +285,41 @@ def test_trains_one_after_another(graph) -> None:  # type: ignore[no-untyped-def
     assert len(w.loads) == 602 and gaps.count(10**6) == 600
     assert max(gaps) >= 0.5 * NS  # the pause between the trains, on the stamps too
     assert w.last().get("trains_done") == "2" and "done: 2 train(s)" in w.diag[-1][1]
+
+
+def test_waits_for_the_track_node_s_own_word_that_it_matched(graph, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
+    """A stand-in named ``clm_track_node`` in this process: on the graph, subscribed and answering, but its
+    /diagnostics say its subscription has matched no wheel-load publisher yet: no train starts; once they say
+    1, the train starts (discovery is two-sided: the vehicle waits for the reader's side too)."""
+    from clm_msgs.msg import WheelRailResponse
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+    make, run = graph
+    w = make()
+    stand_in = ClientNode(ros_domain_id, [], "clm_track_node", executor=EventsExecutor, timeout=START)
+    try:
+        got: list[int] = []
+        stand_in.node.create_subscription(WheelLoads, "/wheel_loads", lambda r: got.append(stamp(r)), QOS, raw=True)
+        stand_in.node.create_publisher(WheelRailResponse, "/wheel_rail_response", QOS)
+        diag = stand_in.node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        matched = ["0"]
+
+        def say() -> None:
+            status = DiagnosticStatus(name="/clm_track_node: track-soil model", message="stand-in",
+                                      values=[KeyValue(key="wheel_load_publishers_matched", value=matched[0])])
+            diag.publish(DiagnosticArray(status=[status]))
+
+        stand_in.node.create_timer(0.1, say)
+        vehicle = run("vehicle_node", *vehicle_args("-p", "trains:=1", "-p", "answer_timeout:=5.0", duration=0.5))
+        w.wait_for(lambda: any("waiting for clm_track_node" in m for _, m, _ in w.diag), "the vehicle waiting")
+        t_end = time.monotonic() + 3.0  # graph and matching done long before: only the stand-in's word is missing
+        while time.monotonic() < t_end:
+            stand_in.exec.spin_once(timeout_sec=0.02)
+            w.exec.spin_once(timeout_sec=0.0)
+        assert not got and "waiting for clm_track_node" in w.diag[-1][1], w.diag[-1]
+        matched[0] = "1"
+        stand_in.wait_for(lambda: len(got) >= 501, "the train once the stand-in said it matched", timeout=60)
+        assert all(b - a == 10**6 for a, b in zip(got, got[1:]))  # from its first message on, nothing lost
+        assert vehicle.poll() is None
+    finally:
+        stand_in.close()

@@ -527,7 +527,8 @@ class CalibrationNode(Node):
             level = DiagnosticStatus.WARN
             if values["state"] == "idle":
                 message = f"idle; last calibration {last[:200]}"
-        publish_status(self, self._pub_diag, f"{self.get_name()}: calibration", level, message, values)
+        publish_status(self, self._pub_diag, f"{self.get_fully_qualified_name()}: calibration", level, message,
+                       values)
 
     # ------------------------------------------------------------------ shutdown
 

@@ -240,7 +240,7 @@ def diagnostic_array(name: str, level: int, message: str, values: Mapping[str, A
     Parameters
     ----------
     name : str
-        Status name, ``<node name>: <what>``.
+        Status name, ``<fully qualified node name>: <what>`` (the namespace tells a fleet's pairs apart).
     level : int
         ``DiagnosticStatus`` level (:data:`OK`, :data:`WARN`, :data:`ERROR`).
     message : str

@@ -650,7 +650,8 @@ class TrackNode(LifecycleNode):
             "wheel_loads_reliability": self._reliability or "none",
             "sim_time_s": f"{model.time_ns / NS:.6f}" if model is not None and model.time_ns is not None else "nan",
         }
-        self._pub_diag.publish(diagnostic_array(f"{self.get_name()}: track-soil model", level, message, values,
+        name = f"{self.get_fully_qualified_name()}: track-soil model"  # the namespace tells a fleet's pairs apart
+        self._pub_diag.publish(diagnostic_array(name, level, message, values,
                                                 self.get_clock().now().to_msg()))
 
     def _flush_answers(self, timeout: float = FLUSH_TIMEOUT) -> bool:

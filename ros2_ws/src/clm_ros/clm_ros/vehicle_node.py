@@ -13,7 +13,9 @@ can leave running:
   Each train waits until the track node is active and subscribed (its
   ``wheel_loads`` subscription, owned by the node named ``track_node``, and
   its ``wheel_rail_response`` publisher, both matched, plus
-  ``wait_for_subscribers`` matched readers of ``wheel_loads`` in all); only
+  ``wait_for_subscribers`` matched readers of ``wheel_loads`` in all, and
+  the track node's own /diagnostics saying its subscription matched this
+  node's publisher); only
   then its clock starts, so its first second is like any other. It publishes
   ``clm_msgs/WheelLoads`` on ``wheel_loads`` at ``rate`` Hz for ``duration``
   simulated seconds, each stamped with its due time (ROS time; with
@@ -69,6 +71,7 @@ from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 
@@ -99,6 +102,11 @@ NODE_SETTINGS = ("trains", "headway", "train_pause", "track_node", "answer_timeo
 #: 5 s, and a reader that died never blocks publishing (keep-all would, then fail). Overridable through the
 #: standard QoS parameters, e.g. ``qos_overrides./wheel_loads.publisher.depth``.
 DATA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+
+#: How long a train waits, once the track node is on the graph and matched, for the track node's own word that
+#: its subscription has matched this node's publisher (``wheel_load_publishers_matched`` in its /diagnostics)
+#: before it starts without it (a track node that publishes no such status: not a clm track node) [ns].
+HANDSHAKE_TIMEOUT_NS = 5 * NS
 #: Answers older than this are forgotten (a later answer counts as unmatched) [s].
 FORGET_AFTER = 30.0
 
@@ -170,6 +178,9 @@ class VehicleNode(LifecycleNode):
         self._clock_pub: Any = None
         self._sub: Any = None
         self._answers_node: Any = None
+        self._diag_sub: Any = None
+        self._handshake: int | None = None  # the track node's matched wheel-load publishers (None: not said)
+        self._graph_ready_since = 0  # monotonic ns since the track node is on the graph and matched (0: not)
         self.closed_loop = False  # (the parameter, read at configure)
         self._diag_mark = (0, 0)  # (published, too late) of the train at the last diagnostics
         # one /diagnostics publisher and timer for the node's life, in every state
@@ -228,6 +239,8 @@ class VehicleNode(LifecycleNode):
                                                context=self.context)
         self._sub = self._answers_node.create_subscription(WheelRailResponse, "wheel_rail_response", _ignore,
                                                            DATA_QOS, qos_overriding_options=qos, raw=True)
+        # the track node's /diagnostics, taken by the node itself while a train waits (see _track_subscribed)
+        self._diag_sub = self._answers_node.create_subscription(DiagnosticArray, "/diagnostics", _ignore, 50)
         self._set_state("configured", DiagnosticStatus.OK)
         freeze_heap()  # the run's objects live until cleanup: no full collection of them during a train
         self.get_logger().info(
@@ -301,7 +314,7 @@ class VehicleNode(LifecycleNode):
                 self.destroy_lifecycle_publisher(p)
         if self._answers_node is not None:
             self._answers_node.destroy_node()
-        self._pub = self._clock_pub = self._sub = self._answers_node = None
+        self._pub = self._clock_pub = self._sub = self._diag_sub = self._answers_node = None
 
     def _halt(self, state: str) -> None:
         """Stop the schedule (the train that runs is reported as stopped)."""
@@ -361,18 +374,43 @@ class VehicleNode(LifecycleNode):
                         self.level)
 
     def _track_ready(self) -> bool:
-        """The track node is active and subscribed: its subscription and answering publisher matched."""
+        """The track node is active and subscribed: its subscription and answering publisher matched, on this
+        node's side and on its own (:meth:`_track_subscribed`)."""
         pub, sub = self._pub, self._sub
         if pub is None or sub is None or pub.get_subscription_count() < int(self.p("wait_for_subscribers")):
             return False
         name = str(self.p("track_node"))
         if not name:
             return True
-        if sub.get_publisher_count() < 1:
-            return False
         readers = self.get_subscriptions_info_by_topic(pub.topic_name)
         writers = self.get_publishers_info_by_topic(sub.topic_name)
-        return any(r.node_name == name for r in readers) and any(w.node_name == name for w in writers)
+        if not (sub.get_publisher_count() >= 1 and any(r.node_name == name for r in readers)
+                and any(w.node_name == name for w in writers)):
+            self._graph_ready_since, self._handshake = 0, None  # (gone, or not there yet: ask again when back)
+            return False
+        return self._track_subscribed(name)
+
+    def _track_subscribed(self, name: str) -> bool:
+        """The track node says (``wheel_load_publishers_matched`` >= 1 in its /diagnostics) that its subscription
+        has matched this node's publisher.
+
+        Discovery is two-sided: this node's writer may have matched the track node's reader before that reader
+        has matched the writer, and wheel loads published in between may never reach a volatile reader (the
+        train's first messages unanswered). A track node whose status carries no such count, or that publishes
+        no status within :data:`HANDSHAKE_TIMEOUT_NS`, is taken at its graph entry.
+        """
+        status = f"{self.get_namespace().rstrip('/')}/{name}: "
+        for raw, _ in take_raw(self._diag_sub):
+            for st in _decode_diagnostics(raw).status:
+                if st.name.startswith(status):
+                    said = next((kv.value for kv in st.values if kv.key == "wheel_load_publishers_matched"), "")
+                    self._handshake = int(said) if said.isdigit() else -1
+        now = time.monotonic_ns()
+        if not self._graph_ready_since:
+            self._graph_ready_since = now
+        if self._handshake is not None:
+            return self._handshake != 0
+        return now - self._graph_ready_since > HANDSHAKE_TIMEOUT_NS
 
     def _serve_wait(self) -> float:
         if self._track_ready():
@@ -609,6 +647,11 @@ class VehicleNode(LifecycleNode):
             message += f" ({stale} of the last {published} answers too late for the closed loop)"
         publish_status(self, self._pub_diag, f"{self.get_fully_qualified_name()}: vehicle simulator", level, message,
                        values)
+
+
+def _decode_diagnostics(raw: bytes) -> Any:
+    """A ``DiagnosticArray`` from its serialized bytes (rclpy's own deserialisation)."""
+    return deserialize_message(raw, DiagnosticArray)
 
 
 def _ignore(_raw: bytes) -> None:
