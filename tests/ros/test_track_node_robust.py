@@ -128,6 +128,9 @@ def test_peer_killed_node_keeps_running_and_answers_the_next(ros_python, ros_dom
         peer = ros_python.spawn(PEER, ["100"], name="peer")
         line = peer.stdout.readline()  # type: ignore[union-attr]
         assert line.startswith("answers"), line
+        # the node has the peer on its graph (under load the graph can lag the data path by seconds: killed
+        # before that, the peer would never be seen to come, nor to go)
+        drv.wait_for(lambda: drv.latest_diagnostics()["wheel_load_publishers"] == "1", 30, "the peer on the graph")
         peer.send_signal(signal.SIGKILL)
         peer.wait(10)
         # the node notices, logs, keeps running, keeps its diagnostics coming
