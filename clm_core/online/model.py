@@ -241,68 +241,12 @@ class OnlineTrackModel:
         Identical, bit for bit, to calling :meth:`process` on each frame in
         turn, whatever the split of a stream into batches.
         """
-        if len(frames) == 1:
-            one = self._one(frames[0])
-            if one is not None:
-                return [one]
         out: list[ResponseFrame | Rejected | None] = [None] * len(frames)
         prep = self._prepare(frames, out)
         i = 0
         while i < len(frames):
             i = self._settle(prep, out, i)
         return out  # type: ignore[return-value]  # every entry is settled
-
-    def _one(self, fr: WheelFrame) -> ResponseFrame | Rejected | None:
-        """The common case of a frame alone, by a short path: its arrays already in the kernels' types (as
-        the CDR decoder gives them), its ids the known set, its stamp continuing the stream. The same
-        checks, the same kernel call and the same settling as :meth:`_settle` with :meth:`_run` for one
-        frame, so the same answer; None (nothing done) when the general path must decide."""
-        ids, pos, F, sp = fr.ids, fr.positions, fr.forces, fr.speeds
-        stamp = fr.stamp_ns
-        if sp is None:
-            sp = self._no_speeds
-        if (type(stamp) is not int or type(ids) is not np.ndarray or type(pos) is not np.ndarray
-                or type(F) is not np.ndarray or type(sp) is not np.ndarray):
-            return None
-        n = ids.shape[0]
-        if (ids.dtype != _I8 or pos.dtype != _F8 or F.dtype != _F8 or sp.dtype != _F8 or ids.ndim != 1
-                or pos.shape != ids.shape or F.shape != ids.shape or sp.shape[0] not in (0, n)
-                or not (ids.flags.c_contiguous and pos.flags.c_contiguous and F.flags.c_contiguous
-                        and sp.flags.c_contiguous and ids.flags.writeable and pos.flags.writeable
-                        and F.flags.writeable and sp.flags.writeable)
-                or n > self.policy.max_wheels or not rules.STAMP_MIN <= stamp <= rules.STAMP_MAX):
-            return None
-        cached = self._ids_key
-        n_slots = len(self._slot_ids)
-        if cached is None or cached[2] > n_slots or cached[0] != ids.tobytes():
-            return None
-        tl = self.timeline
-        last = tl.last
-        if last is None or not last < stamp <= last + tl.max_gap_ns:  # Timeline.continues
-            return None
-        before = tl.state()
-        tl.accepted(stamp)
-        dt, prev = self.dt_ns, self._prev_tick
-        tick = stamp - self.epoch_ns
-        ints = self._ints1
-        ints[0], ints[1], ints[2], ints[4], ints[6] = prev, tick, tick // dt, n, sp.shape[0]
-        ticks, k_end, offsets, soffsets = self._ints1_views
-        k0 = self.sim._s.k
-        res = self._advance(self._loads(ticks, k_end, offsets, cached[1], pos, F, sp, soffsets, n_slots))
-        p = _Prepared(fr, stamp, ids, pos, F, sp)
-        st = self.stats
-        if res.done:
-            self._prev_tick = tick
-            steps = self.sim._s.k - k0
-            st.steps += steps
-            st.simulated_ns += steps * dt
-            st.accepted += 1
-            return self._response(p, res, 0, 0, n, False)
-        tl.restore(before)
-        self._unregister(n_slots)
-        r = self._refused_in_run(p, res, (before, n_slots))
-        self._count([r], 0, 1)
-        return r
 
     # ------------------------------------------------------------------ 1. prepare
 
