@@ -386,7 +386,10 @@ class VehicleNode(LifecycleNode):
         writers = self.get_publishers_info_by_topic(sub.topic_name)
         if not (sub.get_publisher_count() >= 1 and any(r.node_name == name for r in readers)
                 and any(w.node_name == name for w in writers)):
-            self._graph_ready_since, self._handshake = 0, None  # (gone, or not there yet: ask again when back)
+            # gone, or not there yet: ask again when back, and forget what a former track node said
+            self._graph_ready_since, self._handshake = 0, None
+            for _ in take_raw(self._diag_sub):
+                pass
             return False
         return self._track_subscribed(name)
 
@@ -401,7 +404,7 @@ class VehicleNode(LifecycleNode):
         """
         status = f"{self.get_namespace().rstrip('/')}/{name}: "
         for raw, _ in take_raw(self._diag_sub):
-            for st in _decode_diagnostics(raw).status:
+            for st in deserialize_message(raw, DiagnosticArray).status:
                 if st.name.startswith(status):
                     said = next((kv.value for kv in st.values if kv.key == "wheel_load_publishers_matched"), "")
                     self._handshake = int(said) if said.isdigit() else -1
@@ -647,11 +650,6 @@ class VehicleNode(LifecycleNode):
             message += f" ({stale} of the last {published} answers too late for the closed loop)"
         publish_status(self, self._pub_diag, f"{self.get_fully_qualified_name()}: vehicle simulator", level, message,
                        values)
-
-
-def _decode_diagnostics(raw: bytes) -> Any:
-    """A ``DiagnosticArray`` from its serialized bytes (rclpy's own deserialisation)."""
-    return deserialize_message(raw, DiagnosticArray)
 
 
 def _ignore(_raw: bytes) -> None:
