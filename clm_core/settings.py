@@ -418,6 +418,12 @@ LAG_BUDGET: Setting[float] = Setting(
     "lag_budget", float, 5e-3, "s", "answer lag (wheel-load stamp to published answer, on the stamps' clock) above "
     "which /diagnostics turns WARN", minimum=0.0, maximum=3600.0,
 )
+REALTIME_PRIORITY: Setting[int] = Setting(
+    "realtime_priority", int, 10, "-", "SCHED_FIFO priority of the node process's threads once it is built "
+    "(compilation and factorisation run before, at normal priority), so that other load on the machine does not "
+    "delay an answer; 0: normal scheduling. Needs root, CAP_SYS_NICE or `ulimit -r`; refused, the node says so "
+    "once (log, /diagnostics) and runs at normal priority", minimum=0, maximum=98, read_only=True,
+)
 MAX_FEEDBACK_DELAY: Setting[float] = Setting(
     "max_feedback_delay", float, 0.02, "s", "closed loop: an answer older than this is too late to be used as "
     "feedback (the vehicle ignores and counts it; the track node's /diagnostics turn ERROR)", minimum=0.0,
@@ -478,8 +484,8 @@ SETTINGS: Mapping[str, Setting[Any]] = {
         ACCEPT_NEW_WHEELS, INITIAL_STATE, MAX_WHEEL_FORCE, MAX_WHEEL_POSITION, MAX_WHEEL_SPEED, MAX_RESPONSE_FORCE,
         MAX_RESPONSE_DISPLACEMENT, RESYNC_CONFIRM, MAX_WHEELS, DURATION, OUTPUT_DT, STORAGE, START, SPEED, LOAD, AXLES,
         LOADS_FILE, VEHICLE, CARS, TRAIN, IRREGULARITY, SEED, WAVELENGTH_BAND, LEAD_IN, HERTZ, TRACK_ENGINE, RATE,
-        CLOSED_LOOP, LAG_BUDGET, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS, MARKERS_PERIOD,
-        TRAINS, HEADWAY, TRAIN_PAUSE, TRACK_NODE, ANSWER_TIMEOUT, EXIT_WHEN_DONE, DOMAIN_ID,
+        CLOSED_LOOP, LAG_BUDGET, REALTIME_PRIORITY, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS,
+        MARKERS_PERIOD, TRAINS, HEADWAY, TRAIN_PAUSE, TRACK_NODE, ANSWER_TIMEOUT, EXIT_WHEN_DONE, DOMAIN_ID,
     )
 }
 

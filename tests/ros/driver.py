@@ -216,14 +216,15 @@ class NodeRun:
 
 
 @contextlib.contextmanager
-def track_node(ros_python: Any, domain_id: int, *params: str, discover: bool = True,
+def track_node(ros_python: Any, domain_id: int, *params: str, discover: bool = True, script: str = NODE_SCRIPT,
                **driver_options: Any) -> Iterator[NodeRun]:
-    """Start the track node (``-p`` ``params``, diagnostics every 0.1 s) and a :class:`Driver`; at the end close
-    the driver, SIGTERM the node and check it exits 0 (its log in ``NodeRun.err``)."""
+    """Start the track node (``-p`` ``params``, diagnostics every 0.1 s; ``script`` runs it) and a
+    :class:`Driver`; at the end close the driver, SIGTERM the node and check it exits 0 (its log in
+    ``NodeRun.err``)."""
     args = ["--ros-args", "-p", "diagnostics_period:=0.1"]
     for p in params:
         args += ["-p", p]
-    proc = ros_python.spawn(NODE_SCRIPT, args, name="track_node")
+    proc = ros_python.spawn(script, args, name="track_node")
     run = NodeRun(proc, Driver(domain_id, **driver_options))
     try:
         if discover:

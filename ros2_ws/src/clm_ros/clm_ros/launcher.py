@@ -112,6 +112,7 @@ class _Watch:
     def __init__(self) -> None:
         self.vehicle: dict[str, str] = {}
         self.vehicle_final: dict[str, str] = {}
+        self.track: dict[str, str] = {}
         self.track_count = 0
         self.cpu0: tuple[float, float | None, float | None, int] | None = None
 
@@ -123,6 +124,7 @@ class _Watch:
                 if values.get("final_train"):
                     self.vehicle_final = values
             elif "track-soil" in status.name:
+                self.track = values
                 self.track_count += 1
 
 
@@ -237,6 +239,8 @@ def _run_demo(dom: int, out_dir: str | Path, run: RunSettings, timeout: float) -
         "feedback_total": int(v.get("train.feedback_total", 0)),
         "vehicle_node": {k.removeprefix("train."): _number(x) for k, x in v.items() if k.startswith("train.")},
         "exit_codes": codes,
+        "scheduling": {"vehicle_node": v.get("scheduling", "unknown"),
+                       "track_node": watch.track.get("scheduling", "unknown")},
         "loadavg": list(os.getloadavg()),
     })
     summary.update({**run.summary(), "bag": str(bag), "ros_domain_id": dom})

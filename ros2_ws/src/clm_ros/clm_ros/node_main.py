@@ -18,6 +18,10 @@ vehicle and a track node on one executor, :mod:`clm_ros.fleet_pair`):
   :data:`FASTDDS_PROFILE` unless the environment names one;
 - the heap built at start-up frozen out of the garbage collector's reach
   (:func:`freeze_heap`: no 0.1-s collection pause in the middle of a run);
+- once the node and its executor exist, every thread of the process under
+  ``SCHED_FIFO`` at the node's ``realtime_priority`` when permitted
+  (:mod:`clm_ros.realtime`; the start-up ran at normal priority), said once
+  in the log and kept in the node's ``scheduling`` for its /diagnostics;
 - an executor (``EventsExecutor`` unless the node needs another: its
   ``spin()`` delivered no callback on the Jazzy wheels, measured in
   benchmarks/node_lag.py) spun with ``spin_once`` until the flag is set or
@@ -44,6 +48,10 @@ A node used with it may define (all optional; with several nodes, each one's):
     timeout)`` spins until ``done()``, ``timeout`` s or a second signal.
 ``stop() -> None``
     Called once, before anything is destroyed.
+``realtime_priority``
+    The ``SCHED_FIFO`` priority the node asks for (0 or absent: none; with
+    several nodes, the highest); :func:`run_node` sets the node's
+    ``scheduling`` to the :class:`clm_ros.realtime.Scheduling` outcome.
 ``abandoned() -> bool``
     True when a thread that cannot be interrupted still runs (the
     calibration node's fit): the process then ends at once once ROS is
@@ -80,6 +88,7 @@ from rclpy.utilities import get_default_context
 
 from clm_core.errors import ClmError
 from clm_ros.diagnostics import bounded
+from clm_ros.realtime import apply_fifo
 
 __all__ = ["FASTDDS_PROFILE", "PUBLICATION_MODE", "START_ERRORS", "StopSignals", "exit_process", "freeze_heap",
            "run_node"]
@@ -201,6 +210,7 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
         executor = executor_type()
         for node in nodes:
             executor.add_node(node)
+        _schedule(nodes)
         stop.install(interrupt=False)
         code = _spin(nodes, executor, stop, poll)
         if stop.requested():
@@ -227,6 +237,21 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
 def _having(nodes: tuple[Any, ...], hook: str) -> list[Any]:
     """The nodes that define ``hook``."""
     return [node for node in nodes if hasattr(node, hook)]
+
+
+def _schedule(nodes: tuple[Any, ...]) -> None:
+    """Every thread under ``SCHED_FIFO`` at the nodes' highest ``realtime_priority`` when permitted; said once."""
+    asked = [int(node.realtime_priority) for node in _having(nodes, "realtime_priority")]
+    if not asked:
+        return
+    outcome = apply_fifo(max(asked))
+    for node in nodes:
+        node.scheduling = outcome
+    logger = nodes[0].get_logger()
+    if outcome.requested and not outcome.priority:
+        logger.warning(f"scheduling: {outcome.text}; answers may wait for other processes on a busy machine")
+    else:
+        logger.info(f"scheduling: {outcome.text}")
 
 
 def _exit_code(nodes: tuple[Any, ...]) -> int | None:

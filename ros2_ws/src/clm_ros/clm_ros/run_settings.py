@@ -2,7 +2,7 @@
 
 :class:`RunSettings` holds what a vehicle + track node pair runs: the train,
 its speed and length of run, the track and soil, the numerics, the rail
-profile, the loop, the bag storage and the ROS domain. Every field is the run
+profile, the loop, the bag storage, the ROS domain and the nodes' real-time priority. Every field is the run
 setting of :mod:`clm_core.settings` of the same name (type, unit, range and
 default), checked at construction. ``clm demo`` and ``clm fleet`` offer these
 options (:data:`NAMES`) and build the object from the parsed arguments
@@ -60,6 +60,7 @@ class RunSettings:
     closed_loop: bool = _default(settings.CLOSED_LOOP)
     storage: str = _default(settings.STORAGE)
     domain_id: int = _default(settings.DOMAIN_ID)
+    realtime_priority: int = _default(settings.REALTIME_PRIORITY)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -78,7 +79,8 @@ class RunSettings:
     def track_parameters(self) -> dict[str, Any]:
         """The ROS parameters of the track node."""
         return {"track": self.track, "soil": self.soil, "model": self.model, "dt": self.dt,
-                "n_sleepers": self.n_sleepers, "diagnostics_period": DIAGNOSTICS_PERIOD}
+                "n_sleepers": self.n_sleepers, "diagnostics_period": DIAGNOSTICS_PERIOD,
+                "realtime_priority": self.realtime_priority}
 
     def vehicle_parameters(self, seed_offset: int = 0, wait_for_subscribers: int = 2) -> dict[str, Any]:
         """The ROS parameters of a vehicle node: one train, then idle until stopped (the launcher stops it).
@@ -92,7 +94,7 @@ class RunSettings:
             "irregularity": self.irregularity, "seed": self.seed + seed_offset,
             "closed_loop": self.closed_loop, "track": self.track, "soil": self.soil, "model": self.model,
             "trains": 1, "exit_when_done": False, "wait_for_subscribers": wait_for_subscribers,
-            "diagnostics_period": DIAGNOSTICS_PERIOD,
+            "diagnostics_period": DIAGNOSTICS_PERIOD, "realtime_priority": self.realtime_priority,
         }
 
     def summary(self) -> dict[str, Any]:
@@ -101,7 +103,7 @@ class RunSettings:
             "vehicle": self.vehicle, "speed_m_per_s": self.speed, "duration_s": self.duration, "track": self.track,
             "soil": self.soil, "model": self.model, "rate_hz": self.rate, "dt_s": self.dt,
             "n_sleepers": self.n_sleepers, "irregularity": self.irregularity, "seed": self.seed,
-            "closed_loop": self.closed_loop,
+            "closed_loop": self.closed_loop, "realtime_priority": self.realtime_priority,
         }
 
 

@@ -87,6 +87,7 @@ from clm_ros.bag_tools import take_raw
 from clm_ros.diagnostics import publish_status
 from clm_ros.node_main import freeze_heap, run_node
 from clm_ros.parameters import declare_settings
+from clm_ros.realtime import Scheduling
 
 NODE_NAME = "clm_vehicle_node"
 
@@ -169,7 +170,10 @@ class VehicleNode(LifecycleNode):
         # built at configure: every parameter is read-only
         declare_settings(self, RUN_SETTINGS, read_only=True)
         declare_settings(self, NODE_SETTINGS, read_only=True)
-        declare_settings(self, ("autostart",), read_only=True)
+        declare_settings(self, ("autostart", "realtime_priority"), read_only=True)
+        #: SCHED_FIFO priority asked of clm_ros.node_main.run_node, which sets ``scheduling`` to the outcome
+        self.realtime_priority = int(self.p("realtime_priority"))
+        self.scheduling: Scheduling | None = None
         #: None while the process should run; a number ends it with that exit code (clm_ros.node_main)
         self.exit_code: int | None = None
         self._template: StreamingVehicle | None = None
@@ -636,6 +640,7 @@ class VehicleNode(LifecycleNode):
             "malformed": life.malformed,
             "late_publishes": life.late,
             "publish_failed": life.publish_failed,
+            "scheduling": self.scheduling.text if self.scheduling is not None else "normal (not set by run_node)",
         }
         if final:
             values["final_train"] = final

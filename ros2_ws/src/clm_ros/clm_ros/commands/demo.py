@@ -45,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
           f"responses; lag median {quantity(s['lag_median_s'], 's')}, p99 {quantity(s['lag_p99_s'], 's')}, max "
           f"{quantity(s['lag_max_s'], 's')}; {s['feedback_used']} of {s['feedback_total']} answers used as "
           f"feedback ({used:.1f} %)")
+    sched = s["scheduling"]
+    print(f"demo: node scheduling: track {sched['track_node']}, vehicle {sched['vehicle_node']}")
     print(f"demo: peak sleeper soil force {quantity(s['peak_sleeper_soil_force_N'], 'N')}, max rail deflection "
           f"{quantity(s['max_rail_deflection_m'], 'm')}, peak wheel load {quantity(s['peak_wheel_load_N'], 'N')}, "
           f"rms wheel load {quantity(s['rms_wheel_load_N'], 'N')}")
