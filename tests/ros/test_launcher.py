@@ -29,7 +29,7 @@ DEMO_BAG = REPO / "bags" / "demo" / "demo_bag"
 def test_run_settings_defaults_are_the_schema_defaults() -> None:
     run = RunSettings()
     assert NAMES == ("vehicle", "speed", "duration", "track", "soil", "model", "rate", "dt", "n_sleepers",
-                     "irregularity", "seed", "closed_loop", "storage", "domain_id")
+                     "irregularity", "seed", "closed_loop", "storage", "domain_id", "realtime_priority")
     for name in NAMES:
         assert getattr(run, name) == SETTINGS[name].default, name
 
@@ -45,14 +45,16 @@ def test_run_settings_are_checked_and_typed() -> None:
 
 
 def test_run_settings_give_the_nodes_parameters() -> None:
-    run = RunSettings(speed=44.4, seed=7, rate=500.0, duration=2.0)
+    run = RunSettings(speed=44.4, seed=7, rate=500.0, duration=2.0, realtime_priority=3)
     assert run.messages == 1001
     assert run.track_parameters() == {"track": run.track, "soil": run.soil, "model": run.model, "dt": run.dt,
-                                      "n_sleepers": run.n_sleepers, "diagnostics_period": 0.5}
+                                      "n_sleepers": run.n_sleepers, "diagnostics_period": 0.5,
+                                      "realtime_priority": 3}
     v = run.vehicle_parameters(seed_offset=3, wait_for_subscribers=1)
     assert v["speed"] == 44.4 and v["seed"] == 10 and v["rate"] == 500.0 and v["wait_for_subscribers"] == 1
-    assert v["trains"] == 1 and v["exit_when_done"] is False
+    assert v["trains"] == 1 and v["exit_when_done"] is False and v["realtime_priority"] == 3
     assert run.summary()["speed_m_per_s"] == 44.4 and run.summary()["rate_hz"] == 500.0
+    assert run.summary()["realtime_priority"] == 3
 
 
 @pytest.fixture(scope="module")
