@@ -223,6 +223,19 @@ def test_options_refuse_unknown_keys_and_bad_values() -> None:
     assert CalibrationOptions.from_mapping(o.to_dict()) == o
 
 
+def test_options_give_the_fit_controls_with_the_method_budget() -> None:
+    """FitControls holds the rules of max_nfev, ident_rel and cond_max; the options fill in the method's budget."""
+    from clm_core.calibration import CalibrationError
+    from clm_core.calibration.lsq import FitControls
+
+    assert CalibrationOptions().controls(60) == FitControls(max_nfev=60)
+    assert CalibrationOptions(max_nfev=7, ident_rel=0.5).controls(60) == FitControls(7, 0.5, 1e6)
+    for bad, match in (({"max_nfev": 0}, "max_nfev = 0: must be >= 1"), ({"ident_rel": 0.0}, "ident_rel = 0.0"),
+                       ({"cond_max": 1.0}, "cond_max = 1.0: must be > 1")):
+        with pytest.raises(CalibrationError, match=match):
+            CalibrationOptions.from_mapping(bad)
+
+
 def test_public_functions_document_every_argument() -> None:
     """numpydoc: each public function of clm_core.calibration names all its parameters in its docstring."""
     import inspect
