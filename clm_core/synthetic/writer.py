@@ -43,7 +43,7 @@ from clm_core.io.messages import (
     header_msg,
 )
 from clm_core.io.timebase import seconds_to_ns, seconds_to_ns_array
-from clm_core.synthetic.records import SyntheticRecord, add_noise, simulate_impact, simulate_passby, simulate_receptance
+from clm_core.synthetic.records import SyntheticRecord, add_noise
 
 Storage = Literal["mcap", "sqlite3"]
 Style = Literal["stamped", "float64", "block"]
@@ -285,60 +285,40 @@ def _write_passby(writer: BagWriter, rec: SyntheticRecord) -> None:
         writer.write(cs, st + _LOG_DELAY_NS, data)
 
 
-def _simulated_bag(
+def write_simulated_bag(
     simulate: Callable[..., SyntheticRecord],
     path: str | Path,
-    snr_db: float | None,
-    seed: int,
-    storage: Storage,
-    style: Style,
-    keywords: Mapping[str, Any],
+    *,
+    snr_db: float | None = 30.0,
+    seed: int = 0,
+    storage: Storage = "mcap",
+    style: Style = "stamped",
+    **keywords: Any,
 ) -> SyntheticBag:
-    """``simulate(**keywords)``, noise at ``snr_db`` [dB] (None: none) with ``seed``, written by :func:`write_bag`."""
+    """Simulate a test, add noise, write the bag (:func:`write_bag`).
+
+    Parameters
+    ----------
+    simulate : callable
+        :func:`~clm_core.synthetic.records.simulate_impact`,
+        :func:`~clm_core.synthetic.records.simulate_receptance` or
+        :func:`~clm_core.synthetic.records.simulate_passby`.
+    path : path
+        New bag directory (must not exist).
+    snr_db : float or None
+        Noise level [dB] (:func:`~clm_core.synthetic.records.add_noise`); None: noise-free.
+    seed : int
+        Noise seed.
+    storage, style
+        As in :func:`write_bag` (pass-by records are written in the clm_msgs types whatever the style).
+    **keywords
+        Keywords of ``simulate`` (e.g. ``soil``, ``n_areas``, ``fs``, ``duration``, ``hit_times``).
+
+    Returns
+    -------
+    SyntheticBag
+    """
     rec = simulate(**keywords)
     if snr_db is not None:
         rec = add_noise(rec, snr_db, seed)
     return write_bag(rec, path, storage=storage, style=style)
-
-
-def write_impact_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    style: Style = "stamped",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a soil impact test (:func:`~clm_core.synthetic.records.simulate_impact`), add noise, write the bag.
-
-    ``snr_db=None`` writes the noise-free record. Other keywords go to
-    ``simulate_impact`` (``soil``, ``n_areas``, ``measured``, ``quantity``,
-    ``fs``, ``duration``, ``hit_times``, ``pulse``, ...).
-    """
-    return _simulated_bag(simulate_impact, path, snr_db, seed, storage, style, simulate)
-
-
-def write_receptance_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    style: Style = "stamped",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a rail receptance test (``simulate_receptance``), add noise, write the bag."""
-    return _simulated_bag(simulate_receptance, path, snr_db, seed, storage, style, simulate)
-
-
-def write_passby_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a pass-by (``simulate_passby``), add noise, write the bag (clm_msgs types)."""
-    return _simulated_bag(simulate_passby, path, snr_db, seed, storage, "stamped", simulate)

@@ -22,7 +22,7 @@ from clm_core.calibration.spectra import WindowSpec, transfer_functions
 from clm_core.frequency import dynamic_solve
 from clm_core.params import SoilParams, load_model, load_soil
 from clm_core.soil.chain import chain_damping_min_eigenvalue, chain_frequency_response, chain_response, laplace
-from clm_core.synthetic import add_noise, simulate_impact, write_bag, write_impact_bag, write_receptance_bag
+from clm_core.synthetic import add_noise, simulate_impact, simulate_receptance, write_bag, write_simulated_bag
 from clm_core.track import assemble
 
 TRUTH = load_soil("mevergnies")
@@ -33,7 +33,7 @@ NAMES = ("mf", "kf", "df", "kc", "dc")
 def impact_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The shipped impact test, regenerated: 41 areas, geophones (velocity), 1 kHz, 1 s, 30 dB."""
     path = tmp_path_factory.mktemp("impact") / "impact_mevergnies"
-    write_impact_bag(path, snr_db=30.0, seed=1, storage="mcap")
+    write_simulated_bag(simulate_impact, path, snr_db=30.0, seed=1, storage="mcap")
     return path
 
 
@@ -177,7 +177,7 @@ def test_one_sided_record_uses_the_symmetric_sums() -> None:
 @pytest.fixture(scope="module")
 def receptance_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("receptance") / "receptance_mevergnies"
-    write_receptance_bag(path, snr_db=30.0, seed=1)
+    write_simulated_bag(simulate_receptance, path, snr_db=30.0, seed=1)
     return path
 
 
