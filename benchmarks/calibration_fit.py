@@ -24,7 +24,7 @@ from clm_core.calibration import calibrate, read_bag
 from clm_core.calibration.channels import find_channel_map, load_channel_map
 from clm_core.calibration.impact import fit_impact
 from clm_core.calibration.spectra import WindowSpec, transfer_functions
-from clm_core.synthetic import write_impact_bag
+from clm_core.synthetic import simulate_impact, write_simulated_bag
 
 SHIPPED = Path(__file__).resolve().parents[1] / "bags" / "calibration" / "impact_mevergnies"
 
@@ -39,7 +39,7 @@ def main() -> int:
     if not bag.exists():
         tmp = tempfile.TemporaryDirectory()
         bag = Path(tmp.name) / "impact_mevergnies"
-        write_impact_bag(bag, snr_db=30.0, seed=1)
+        write_simulated_bag(simulate_impact, bag, snr_db=30.0, seed=1)
     cmap = load_channel_map(find_channel_map(bag))  # type: ignore[arg-type]
     stages: dict[str, list[float]] = {k: [] for k in ("read", "tf", "clm", "compare", "calibrate")}
     for _ in range(args.repeat):

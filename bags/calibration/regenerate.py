@@ -14,7 +14,7 @@ from __future__ import annotations
 from functools import partial
 from pathlib import Path
 
-from clm_core.synthetic import write_impact_bag, write_receptance_bag
+from clm_core.synthetic import simulate_impact, simulate_receptance, write_simulated_bag
 from clm_core.synthetic.shipped import regenerate
 
 HERE = Path(__file__).resolve().parent
@@ -22,12 +22,14 @@ HERE = Path(__file__).resolve().parent
 #: What is shipped: name -> writer with its keyword arguments (called with the directory and ``storage``).
 BAGS = {
     "impact_mevergnies": partial(
-        write_impact_bag,
+        write_simulated_bag,
+        simulate_impact,
         n_areas=41, quantity="velocity", fs=1000.0, duration=1.0, hit_times=(0.2,), pulse="half-sine",
         pulse_duration=0.003, amplitude=10e3, snr_db=30.0, seed=1,
     ),
     "receptance_mevergnies": partial(
-        write_receptance_bag,
+        write_simulated_bag,
+        simulate_receptance,
         n_sleepers=41, rail_sleepers=(0, 1, 2, 3, 4), sleeper_sleepers=(0,), quantity="acceleration",
         fs=2000.0, duration=0.6, hit_times=(0.1,), pulse="half-sine", pulse_duration=0.0008, amplitude=20e3,
         snr_db=30.0, seed=1,

@@ -14,26 +14,24 @@ impact test bag in the calibration-bag format, with ``channels.yaml`` and
 
 from __future__ import annotations
 
-from functools import partial
 from pathlib import Path
+from typing import Any
 
-from clm_core.synthetic.reference import write_reference_impact_bag
+from clm_core.synthetic.reference import ReferenceImpactBag, rigorous_reference, write_reference_impact_bag
 from clm_core.synthetic.shipped import regenerate
 
 HERE = Path(__file__).resolve().parent
 
-#: What is shipped: name -> write_reference_impact_bag with its keyword arguments.
-BAGS = {
-    "impact_mevergnies_rigorous": partial(
-        write_reference_impact_bag,
-        profile="mevergnies",
-        n_areas=41,
-        spacing=0.6,
-        sweep_max=150.0,
-        df=1.0,
-        fmin=0.0,
-        fmax=80.0,
-        norm="ls",
+
+def impact_mevergnies_rigorous(path: Path, *, storage: Any) -> ReferenceImpactBag:
+    """The shipped bag: the rigorous sweep and direct CLM fit, then the record written with noise."""
+    reference = rigorous_reference(
+        "mevergnies", n_areas=41, spacing=0.6, sweep_max=150.0, df=1.0, fmin=0.0, fmax=80.0, norm="ls"
+    )
+    return write_reference_impact_bag(
+        path,
+        reference=reference,
+        storage=storage,
         quantity="velocity",
         fs=1000.0,
         amplitude=10e3,
@@ -42,8 +40,11 @@ BAGS = {
         shaping="gaussian",
         snr_db=30.0,
         seed=1,
-    ),
-}
+    )
+
+
+#: What is shipped: name -> the function writing it.
+BAGS = {"impact_mevergnies_rigorous": impact_mevergnies_rigorous}
 
 
 def main() -> int:

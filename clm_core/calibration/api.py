@@ -349,11 +349,11 @@ def calibrate(
     if method == "passby":
         assert contents.loads is not None
         n_calls = [0]
-        budget = opts.max_nfev or 60
+        controls = opts.controls(60)
 
         def tick() -> None:
             n_calls[0] += 1
-            report("fitting (time-domain simulations)", min(0.95, 0.2 + 0.75 * n_calls[0] / (budget + 10)))
+            report("fitting (time-domain simulations)", min(0.95, 0.2 + 0.75 * n_calls[0] / (controls.max_nfev + 10)))
 
         fit = fit_passby(
             rec,
@@ -364,9 +364,7 @@ def calibrate(
             opts.initial,
             opts.dt,
             opts.quiet_distance,
-            max_nfev=budget,
-            ident_rel=opts.ident_rel,
-            cond_max=opts.cond_max,
+            controls=controls,
             progress=tick,
         )
         warnings += fit.warnings
@@ -386,9 +384,7 @@ def calibrate(
             opts.n_areas,
             opts.initial,
             first,
-            max_nfev=opts.max_nfev or 200,
-            ident_rel=opts.ident_rel,
-            cond_max=opts.cond_max,
+            controls=opts.controls(200),
             interval=opts.interval,
             first=opts.first,
         )
@@ -399,8 +395,7 @@ def calibrate(
             for k, other in enumerate(m for m in ("clm", "lysmer", "winkler") if m != opts.model):
                 try:
                     comps.append(
-                        fit_impact(data, other, opts.norm, opts.n_areas, None, first,
-                                   max_nfev=opts.max_nfev or 200, ident_rel=opts.ident_rel, cond_max=opts.cond_max,
+                        fit_impact(data, other, opts.norm, opts.n_areas, None, first, controls=opts.controls(200),
                                    interval=opts.interval, first=opts.first)
                     )
                 except CalibrationError as exc:
@@ -423,9 +418,7 @@ def calibrate(
         opts.norm,
         opts.n_sleepers,
         opts.initial,
-        max_nfev=opts.max_nfev or 100,
-        ident_rel=opts.ident_rel,
-        cond_max=opts.cond_max,
+        controls=opts.controls(100),
     )
     warnings += tfit.warnings
     report("track fit", 0.9)

@@ -67,10 +67,11 @@ from numpy.typing import NDArray
 
 from clm_core.arrays import Array, CArray
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import FitStats, ParameterEstimate, Sandwich, fit_constrained
+from clm_core.calibration.lsq import FitControls, FitStats, ParameterEstimate, Sandwich, fit_constrained
 from clm_core.calibration.residuals import (
     WhitenessCheck,
     channel_noise_power,
+    corr_factor,
     make_sandwich,
     misfit,
     norm_weights,
@@ -93,7 +94,6 @@ WHITE_RMS = 1.2
 #: ... and their lag-1 autocorrelation is at most this [-], or not significant at WHITE_P.
 WHITE_LAG1 = 0.05
 WHITE_P = 1e-3
-SOIL_UNITS: Mapping[str, str] = {"mf": "kg", "kf": "N/m", "df": "N s/m", "kc": "N/m", "dc": "N s/m"}
 _FREE: Mapping[str, tuple[str, ...]] = {
     "clm": ("mf", "kf", "df", "kc", "dc"),
     "lysmer": ("mf", "kf", "df"),
@@ -311,9 +311,7 @@ def fit_impact(
     initial: Mapping[str, float] | None = None,
     first_data: TransferData | None = None,
     *,
-    max_nfev: int = 200,
-    ident_rel: float = 0.25,
-    cond_max: float = 1e6,
+    controls: FitControls | None = None,
     interval: str = "inflated",
     first: str = "weighted",
     grow_tol: float = 0.005,
@@ -338,8 +336,9 @@ def fit_impact(
     first_data : TransferData, optional
         Receptances without exponential window for the ``paper`` first
         estimate (default ``data``).
-    max_nfev, ident_rel, cond_max
-        See :func:`clm_core.calibration.lsq.fit_bounded`.
+    controls : FitControls, optional
+        Budget and identifiability rules (default: :class:`~clm_core.calibration.lsq.FitControls`,
+        200 evaluations).
     interval : {'inflated', 'noise', 'hac'}
         Interval method (:mod:`clm_core.calibration.lsq`); ``inflated``
         groups the residuals by channel.
@@ -424,8 +423,8 @@ def fit_impact(
 
     def run(n: int, start: Array) -> _ChainFit:
         return _fit_chain(
-            data, model, n, used, W, start, sandwich, norm_used, max_nfev, ident_rel, cond_max,
-            interval, lines, chans, power,
+            data, model, n, used, W, start, sandwich, norm_used, controls or FitControls(), interval, lines, chans,
+            power,
         )
 
     fit = run(n_areas, p0)
@@ -489,9 +488,7 @@ def _fit_chain(
     p0: Array,
     sandwich: Sandwich | None,
     norm_used: str,
-    max_nfev: int,
-    ident_rel: float,
-    cond_max: float,
+    controls: FitControls,
     interval: str,
     lines: NDArray[np.int64],
     chans: NDArray[np.int64],
@@ -525,12 +522,9 @@ def _fit_chain(
     p, est, stats, w2 = fit_constrained(
         residual,
         free,
-        SOIL_UNITS,
         p0,
-        corr_factor=data.corr_factor if norm_used == "weighted" else 1.0,
-        max_nfev=max_nfev,
-        ident_rel=ident_rel,
-        cond_max=cond_max,
+        corr_factor=corr_factor(data, norm_used),
+        controls=controls,
         sandwich=sandwich,
         interval=interval,
         lines=lines,

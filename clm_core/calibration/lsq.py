@@ -53,7 +53,7 @@ reported as not identifiable from the data.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -63,6 +63,7 @@ from numpy.typing import NDArray
 from clm_core.arrays import Array
 from clm_core.calibration.errors import CalibrationError
 from clm_core.errors import ParameterError
+from clm_core.params import PARAMETER_DOCS
 
 Residual = Callable[[Array], tuple[Array, Array | None]]
 #: J -> (J^T Sigma J, trace Sigma): the residual covariance of the noise, applied to a Jacobian.
@@ -275,6 +276,43 @@ def covariance(
     return cov_s * np.outer(pscale, pscale), noise_ratio, infl, method
 
 
+@dataclass(frozen=True)
+class FitControls:
+    """Budget of the optimiser and identifiability rules of a bounded fit (module docstring).
+
+    The defaults are the impact fit's; the receptance and pass-by fits take 100
+    and 60 evaluations (:meth:`clm_core.calibration.options.CalibrationOptions.controls`
+    gives the user's values with the method's budget).
+
+    Attributes
+    ----------
+    max_nfev : int
+        Evaluation budget of the optimiser.
+    ident_rel : float
+        Largest 95 % half-width, relative to the value, of an identifiable parameter.
+    cond_max : float
+        Largest condition number of the scaled Jacobian before the weakest
+        direction is reported.
+
+    Raises
+    ------
+    CalibrationError
+        max_nfev < 1, ident_rel <= 0 or cond_max <= 1.
+    """
+
+    max_nfev: int = 200
+    ident_rel: float = 0.25
+    cond_max: float = 1e6
+
+    def __post_init__(self) -> None:
+        if not 0 < self.ident_rel:
+            raise CalibrationError(f"ident_rel = {self.ident_rel}: must be > 0")
+        if not self.cond_max > 1:
+            raise CalibrationError(f"cond_max = {self.cond_max}: must be > 1")
+        if self.max_nfev < 1:
+            raise CalibrationError(f"max_nfev = {self.max_nfev}: must be >= 1")
+
+
 def fit_bounded(
     residual: Residual,
     names: Sequence[str],
@@ -285,9 +323,7 @@ def fit_bounded(
     z_upper: Array,
     *,
     corr_factor: float = 1.0,
-    max_nfev: int = 200,
-    ident_rel: float = 0.25,
-    cond_max: float = 1e6,
+    controls: FitControls | None = None,
     fd_step: float = 1e-6,
     jacobian: bool = True,
     sandwich: Sandwich | None = None,
@@ -313,13 +349,8 @@ def fit_bounded(
         Bounds of z.
     corr_factor : float
         kappa (>= 1) for correlated residuals.
-    max_nfev : int
-        Evaluation budget of the optimiser.
-    ident_rel : float
-        Largest 95 % half-width, relative to the value, of an identifiable parameter.
-    cond_max : float
-        Largest condition number of the scaled Jacobian before the weakest
-        direction is reported.
+    controls : FitControls, optional
+        Budget and identifiability rules (default: :class:`FitControls` defaults).
     fd_step : float
         Relative step of finite differences.
     jacobian : bool
@@ -349,6 +380,7 @@ def fit_bounded(
     from scipy.optimize import least_squares  # lazy: importing this module (options, the CLI parser) stays light
     from scipy.stats import t as student_t
 
+    ctl = controls or FitControls()
     p0 = np.asarray(p0, dtype=float)
     n = p0.size
     Ainv = np.linalg.inv(A)
@@ -385,7 +417,7 @@ def fit_bounded(
         jac=jac if jacobian else "2-point",
         bounds=(lo / scale, hi / scale),
         x_scale="jac",
-        max_nfev=max_nfev,
+        max_nfev=ctl.max_nfev,
         method="trf",
     )
     z = sol.x * scale
@@ -413,14 +445,14 @@ def fit_bounded(
     at_bound_p = (np.abs(A) > 0) @ at_bound_z.astype(float) > 0
     warnings: list[str] = []
     weak = set()
-    if cond > cond_max and cov_s is not None:
+    if cond > ctl.cond_max and cov_s is not None:
         v = Vt[-1]
         dom = [names[i] for i in np.argsort(-np.abs(v)) if abs(v[i]) > 0.3]
         weak.update(dom)
         warnings.append(
             "the data constrain only a combination of "
             + ", ".join(dom)
-            + f" (Jacobian condition number {cond:.3g}, rule <= {cond_max:.3g}): these parameters are not "
+            + f" (Jacobian condition number {cond:.3g}, rule <= {ctl.cond_max:.3g}): these parameters are not "
             "identifiable separately; fix some of them or measure more channels/a wider band"
         )
     if cov_s is None:
@@ -435,11 +467,11 @@ def fit_bounded(
             std = math.inf
         lo_ci, hi_ci = p[i] - tq * std, p[i] + tq * std
         rel = tq * std / abs(p[i]) if p[i] != 0 else math.inf
-        ident = bool(rel <= ident_rel) and names[i] not in weak
-        if not rel <= ident_rel:
+        ident = bool(rel <= ctl.ident_rel) and names[i] not in weak
+        if not rel <= ctl.ident_rel:
             warnings.append(
                 f"{names[i]} is not identifiable from these data: 95 % interval {p[i]:.4g} +- {tq * std:.3g} {units[i]}"
-                f" (+-{100 * rel:.0f} % of the value; rule: within +-{100 * ident_rel:.0f} %)"
+                f" (+-{100 * rel:.0f} % of the value; rule: within +-{100 * ctl.ident_rel:.0f} %)"
             )
         est.append(
             ParameterEstimate(
@@ -540,7 +572,6 @@ def transform(names: Sequence[str], p0: Array) -> tuple[Array, Array, Array]:
 def fit_constrained(
     residual: Residual,
     names: Sequence[str],
-    units: Mapping[str, str],
     p0: Array,
     **options: Any,
 ) -> tuple[Array, tuple[ParameterEstimate, ...], FitStats, list[str]]:
@@ -549,16 +580,15 @@ def fit_constrained(
     Parameters
     ----------
     residual, names, p0
-        As in :func:`fit_bounded`.
-    units : mapping name -> str
-        SI unit of every parameter name (at least those in ``names``).
+        As in :func:`fit_bounded` (model parameter names; their units are
+        those of :data:`clm_core.params.PARAMETER_DOCS`).
     **options
-        Keywords of :func:`fit_bounded` (``corr_factor``, ``max_nfev``,
-        ``ident_rel``, ``cond_max``, ``jacobian``, ``sandwich``, ...).
+        Keywords of :func:`fit_bounded` (``corr_factor``, ``controls``,
+        ``jacobian``, ``sandwich``, ...).
 
     Returns
     -------
     As :func:`fit_bounded`.
     """
     A, lo, hi = transform(names, p0)
-    return fit_bounded(residual, names, [units[k] for k in names], p0, A, lo, hi, **options)
+    return fit_bounded(residual, names, [PARAMETER_DOCS[k][1] for k in names], p0, A, lo, hi, **options)

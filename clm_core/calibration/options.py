@@ -18,7 +18,7 @@ from typing import Any
 import yaml
 
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import INTERVALS
+from clm_core.calibration.lsq import INTERVALS, FitControls
 from clm_core.calibration.residuals import NORMS
 from clm_core.calibration.signals import SamplingRules
 from clm_core.calibration.spectra import WindowSpec
@@ -142,12 +142,11 @@ class CalibrationOptions:
             raise CalibrationError(f"n_sleepers = {self.n_sleepers}: must be odd and >= 3")
         if self.min_lines < 4:
             raise CalibrationError(f"min_lines = {self.min_lines}: must be >= 4")
-        if not 0 < self.ident_rel:
-            raise CalibrationError(f"ident_rel = {self.ident_rel}: must be > 0")
-        if not self.cond_max > 1:
-            raise CalibrationError(f"cond_max = {self.cond_max}: must be > 1")
-        if self.max_nfev is not None and self.max_nfev < 1:
-            raise CalibrationError(f"max_nfev = {self.max_nfev}: must be >= 1")
+        self.controls(1)  # the rules of max_nfev, ident_rel, cond_max
+
+    def controls(self, budget: int) -> FitControls:
+        """The fit controls: :attr:`max_nfev` (else ``budget``, the method's), :attr:`ident_rel`, :attr:`cond_max`."""
+        return FitControls(budget if self.max_nfev is None else self.max_nfev, self.ident_rel, self.cond_max)
 
     def band(self, method: str, fs: float | None = None) -> tuple[float, float]:
         """The fit band [Hz] for a method: the options' values or the defaults (fmax <= 0.45 fs)."""

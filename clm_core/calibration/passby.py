@@ -32,8 +32,8 @@ from clm_core.arrays import Array
 from clm_core.calibration.bagio import WheelLoadRecord
 from clm_core.calibration.channels import ChannelSpec
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import fit_constrained
-from clm_core.calibration.receptance import UNITS, TrackFit, free_parameters, starting_set
+from clm_core.calibration.lsq import FitControls, fit_constrained
+from clm_core.calibration.receptance import TrackFit, free_parameters, starting_set
 from clm_core.calibration.signals import Recording
 from clm_core.errors import ParameterError
 from clm_core.params import ModelParams
@@ -141,9 +141,7 @@ def fit_passby(
     dt: float | None = None,
     quiet_distance: float = 6.0,
     *,
-    max_nfev: int = 60,
-    ident_rel: float = 0.25,
-    cond_max: float = 1e6,
+    controls: FitControls | None = None,
     progress: Any = None,
 ) -> TrackFit:
     """Output-error fit of track (and soil) parameters to a pass-by record.
@@ -168,8 +166,9 @@ def fit_passby(
     quiet_distance : float
         Distance [m] beyond which a wheel does not move a sleeper (noise
         estimate and offset removal).
-    max_nfev, ident_rel, cond_max
-        See :func:`clm_core.calibration.lsq.fit_bounded`.
+    controls : FitControls, optional
+        Budget and identifiability rules (default: :class:`~clm_core.calibration.lsq.FitControls`
+        with 60 evaluations, each a time-domain simulation).
     progress : callable, optional
         Called with no argument after each simulation.
 
@@ -236,11 +235,8 @@ def fit_passby(
         p, est, stats, w2 = fit_constrained(
             residual,
             names,
-            UNITS,
             p0,
-            max_nfev=max_nfev,
-            ident_rel=ident_rel,
-            cond_max=cond_max,
+            controls=controls or FitControls(max_nfev=60),
             jacobian=False,
             sandwich=None if classical else (lambda J: (J.T @ J, float(J.shape[0]))),
         )

@@ -26,27 +26,16 @@ from numpy.typing import NDArray
 
 from clm_core.arrays import Array, CArray
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import FitStats, ParameterEstimate, fit_constrained
+from clm_core.calibration.lsq import FitControls, FitStats, ParameterEstimate, fit_constrained
 from clm_core.calibration.models import track_response
-from clm_core.calibration.residuals import make_sandwich, misfit, norm_weights, stack_residual
+from clm_core.calibration.residuals import corr_factor, make_sandwich, misfit, norm_weights, stack_residual
 from clm_core.calibration.spectra import TransferData
 from clm_core.errors import ParameterError
 from clm_core.params import SOIL_USED, ModelParams
+from clm_core.soil.chain import CHAIN_PARAMS
 from clm_core.track import TrackSystem, assemble
 
 TRACK_FIT_NAMES: tuple[str, ...] = ("kp", "dp", "ms", "kb", "db")
-UNITS: Mapping[str, str] = {
-    "kp": "N/m",
-    "dp": "N s/m",
-    "ms": "kg",
-    "kb": "N/m",
-    "db": "N s/m",
-    "mf": "kg",
-    "kf": "N/m",
-    "df": "N s/m",
-    "kc": "N/m",
-    "dc": "N s/m",
-}
 DEFAULT_FIT: tuple[str, ...] = ("kp", "dp", "kb", "db")
 
 
@@ -106,7 +95,7 @@ def free_parameters(base: ModelParams, fit: Sequence[str], soil: str) -> tuple[s
     if soil not in ("fixed", "joint"):
         raise CalibrationError(f"soil = {soil!r}: must be 'fixed' or 'joint'")
     names = [str(n) for n in fit]
-    unknown = [n for n in names if n not in TRACK_FIT_NAMES and n not in UNITS]
+    unknown = [n for n in names if n not in TRACK_FIT_NAMES and n not in CHAIN_PARAMS]
     if unknown:
         raise CalibrationError(f"fit: unknown parameter(s) {unknown}; track: {', '.join(TRACK_FIT_NAMES)}")
     soil_names = [n for n in names if n not in TRACK_FIT_NAMES]
@@ -134,7 +123,7 @@ def starting_set(base: ModelParams, initial: Mapping[str, float] | None) -> Mode
     base : ModelParams
         Fixed values and default starting point.
     initial : mapping name -> value, optional
-        Starting values overriding ``base`` (units of :data:`UNITS`).
+        Starting values overriding ``base`` [SI].
 
     Raises
     ------
@@ -190,9 +179,7 @@ def fit_receptance(
     n_sleepers: int = 41,
     initial: Mapping[str, float] | None = None,
     *,
-    max_nfev: int = 100,
-    ident_rel: float = 0.25,
-    cond_max: float = 1e6,
+    controls: FitControls | None = None,
 ) -> TrackFit:
     """Fit track (and soil) parameters to the receptances of a hammer test on the rail.
 
@@ -212,8 +199,9 @@ def fit_receptance(
         Model track length (odd; >= 21 recommended, paper Sec. 5).
     initial : mapping, optional
         Starting values overriding ``base``.
-    max_nfev, ident_rel, cond_max
-        See :func:`clm_core.calibration.lsq.fit_bounded`.
+    controls : FitControls, optional
+        Budget and identifiability rules (default: :class:`~clm_core.calibration.lsq.FitControls`
+        with 100 evaluations).
 
     Returns
     -------
@@ -260,12 +248,9 @@ def fit_receptance(
     p, est, stats, w2 = fit_constrained(
         residual,
         names,
-        UNITS,
         p0,
-        corr_factor=data.corr_factor if norm_used == "weighted" else 1.0,
-        max_nfev=max_nfev,
-        ident_rel=ident_rel,
-        cond_max=cond_max,
+        corr_factor=corr_factor(data, norm_used),
+        controls=controls or FitControls(max_nfev=100),
         jacobian=False,
         sandwich=make_sandwich(data, cols, D),
     )

@@ -167,6 +167,15 @@ def norm_weights(data: TransferData, cols: list[int], norm: str) -> tuple[Array 
     raise CalibrationError(f"norm = {norm!r}: must be one of {', '.join(NORMS)}")
 
 
+def corr_factor(data: TransferData, norm: str) -> float:
+    """kappa of a fit in ``norm`` (:func:`clm_core.calibration.lsq.fit_bounded`) [-].
+
+    The window's correlation of neighbouring lines (:attr:`TransferData.corr_factor`)
+    for the ``weighted`` norm, 1 for the others.
+    """
+    return data.corr_factor if norm == "weighted" else 1.0
+
+
 def misfit(Hm: CArray, H: CArray, W: Array | None) -> float:
     """Relative misfit in the fit's norm: ||W (H_model - H)|| / ||W H|| (``log``: rms |log(H_model / H)|) [-]."""
     if W is None:

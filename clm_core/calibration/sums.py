@@ -64,10 +64,10 @@ from scipy.stats import t as student_t
 
 from clm_core.calibration.lsq import ParameterEstimate
 from clm_core.calibration.spectra import TransferData
+from clm_core.params import PARAMETER_DOCS
 
 #: Parameter order (the chain's, :data:`clm_core.calibration.models.CHAIN_PARAMS`).
 NAMES: tuple[str, ...] = ("mf", "kf", "df", "kc", "dc")
-UNITS: tuple[str, ...] = ("kg", "N/m", "N s/m", "N/m", "N s/m")
 
 
 @dataclass(frozen=True)
@@ -310,12 +310,12 @@ def fit_sums(data: TransferData, snr_min: float = 1.0, iterations: int = 12, ban
     cov = inv @ B @ inv * np.outer(pscale, pscale)
     tq = float(student_t.ppf(0.975, dof))
     est = []
-    for i, (name, unit) in enumerate(zip(NAMES, UNITS)):
+    for i, name in enumerate(NAMES):
         std = math.sqrt(max(float(cov[i, i]), 0.0))
         est.append(
             ParameterEstimate(
                 name=name,
-                unit=unit,
+                unit=PARAMETER_DOCS[name][1],
                 value=float(p[i]),
                 initial=float(p[i]),
                 std=std,

@@ -26,9 +26,7 @@ from clm_core.synthetic.writer import (
     SyntheticBag,
     channel_map_for,
     write_bag,
-    write_impact_bag,
-    write_passby_bag,
-    write_receptance_bag,
+    write_simulated_bag,
 )
 
 __all__ = [
@@ -42,7 +40,5 @@ __all__ = [
     "simulate_passby",
     "simulate_receptance",
     "write_bag",
-    "write_impact_bag",
-    "write_passby_bag",
-    "write_receptance_bag",
+    "write_simulated_bag",
 ]

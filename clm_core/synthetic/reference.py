@@ -84,7 +84,7 @@ from clm_core.halfspace.impact import ImpactResponse, impact_response
 from clm_core.profile import SoilProfile, load_profile
 from clm_core.soil.chain import chain_frequency_response
 from clm_core.synthetic.records import SyntheticRecord, _area_topic, _spec, add_noise
-from clm_core.synthetic.writer import Storage, Style, plain, write_record
+from clm_core.synthetic.writer import BagFormat, Storage, Style, plain, write_record
 
 __all__ = [
     "RecordOptions",
@@ -422,7 +422,7 @@ def reference_impact_record(
     return rec, r
 
 
-def _reference_yaml(ref: RigorousReference, rec: SyntheticRecord, storage: str, style: str) -> dict[str, Any]:
+def _reference_yaml(ref: RigorousReference, rec: SyntheticRecord, fmt: BagFormat) -> dict[str, Any]:
     s = ref.summary
     fit = dict(s.get("fit", {}))
     f = ref.freqs
@@ -452,8 +452,8 @@ def _reference_yaml(ref: RigorousReference, rec: SyntheticRecord, storage: str, 
     if s.get("preset_clm"):
         out["paper_clm"] = {"what": "the preset's CLM values (paper tables), for comparison", **s["preset_clm"]}
     out["settings"] = dict(rec.settings)
-    out["storage"] = storage
-    out["style"] = style
+    out["storage"] = fmt.storage
+    out["style"] = fmt.style
     return plain(out)  # type: ignore[no-any-return]
 
 
@@ -461,18 +461,11 @@ def write_reference_impact_bag(
     path: str | Path,
     profile: str | Path | SoilProfile = "mevergnies",
     *,
-    n_areas: int = 41,
-    spacing: float = 0.6,
     snr_db: float | None = 30.0,
     seed: int = 1,
     storage: Storage = "mcap",
     style: Style = "stamped",
     reference: RigorousReference | SoilCalibration | None = None,
-    sweep_max: float = DEFAULT_SWEEP_MAX,
-    df: float = DEFAULT_DF,
-    fmin: float = 0.0,
-    fmax: float = 80.0,
-    norm: Literal["ls", "relative"] = "ls",
     **record: Unpack[RecordOptions],
 ) -> ReferenceImpactBag:
     """Write a soil impact test bag of the rigorous half-space response to the Eq. (1) pulse.
@@ -484,10 +477,6 @@ def write_reference_impact_bag(
     profile : str, Path or SoilProfile
         Soil preset name (``mevergnies``, ...), profile file, or profile
         (ignored when ``reference`` is given).
-    n_areas : int
-        Contact areas 2n + 1 (41: the paper's n = 20), all instrumented.
-    spacing : float
-        Sleeper spacing d [m].
     snr_db : float or None
         Noise level, as in the calibration bags (None: noise-free).
     seed : int
@@ -498,12 +487,10 @@ def write_reference_impact_bag(
         Message style (:func:`clm_core.synthetic.writer.write_bag`).
     reference : RigorousReference or SoilCalibration, optional
         A rigorous computation to reuse (its grid must start at 0 Hz and be
-        uniform); default: computed here with ``sweep_max``, ``df``,
-        ``fmin``, ``fmax``, ``norm`` (about 15-30 s for 41 areas).
-    sweep_max, df : float
-        Rigorous sweep 0..sweep_max by df [Hz] (record length 1 / df).
-    fmin, fmax, norm
-        Band [Hz] and norm of the direct CLM fit written to ``reference.yaml``.
+        uniform; every area is instrumented); default:
+        ``rigorous_reference(profile)`` with its defaults (41 areas, 0-150 Hz
+        sweep, direct CLM fit in 0-80 Hz; about 15-30 s). Other areas,
+        spacing, sweep or fit band: pass ``reference=rigorous_reference(profile, ...)``.
     **record
         ``source``, ``quantity``, ``fs`` [Hz], ``amplitude`` [N], ``t0`` [s],
         ``td`` [s], ``shaping``, ``taper_db`` [dB]: the record, as in
@@ -523,10 +510,9 @@ def write_reference_impact_bag(
     out = Path(path)
     if out.exists():
         raise CalibrationError(f"bag {str(out)!r} exists; choose a new path")
+    fmt = BagFormat(storage, style)
     if reference is None:
-        ref = rigorous_reference(
-            profile, n_areas=n_areas, spacing=spacing, sweep_max=sweep_max, df=df, fmin=fmin, fmax=fmax, norm=norm
-        )
+        ref = rigorous_reference(profile)
     elif isinstance(reference, SoilCalibration):
         preset = None if isinstance(profile, SoilProfile) or profile != reference.profile.name else _preset_clm(profile)
         ref = RigorousReference.from_calibration(reference, preset)
@@ -535,14 +521,14 @@ def write_reference_impact_bag(
     rec, resp = reference_impact_record(ref, **record)
     if snr_db is not None:
         rec = add_noise(rec, snr_db, seed)
-    data = _reference_yaml(ref, rec, storage, style)
+    data = _reference_yaml(ref, rec, fmt)
     text = (
         "# Rigorous half-space reference this soil impact bag was generated from (SI units: N, m, s, kg).\n"
         "# Not a CLM truth: 'clm_fitted_from_rigorous_sums' is the CLM fitted directly to the rigorous sums,\n"
         "# for comparison with a calibration from the bag (docs/validation.md, 'Rigorous half-space reference').\n"
         + yaml.safe_dump(data, sort_keys=False)
     )
-    bag_path = write_record(rec, out, storage=storage, style=style, files={"reference.yaml": text})
+    bag_path = write_record(rec, out, fmt, {"reference.yaml": text})
     return ReferenceImpactBag(
         path=bag_path, channels=bag_path / "channels.yaml", reference=bag_path / "reference.yaml", record=rec,
         response=resp, rigorous=ref

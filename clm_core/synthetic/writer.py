@@ -43,7 +43,7 @@ from clm_core.io.messages import (
     header_msg,
 )
 from clm_core.io.timebase import seconds_to_ns, seconds_to_ns_array
-from clm_core.synthetic.records import SyntheticRecord, add_noise, simulate_impact, simulate_passby, simulate_receptance
+from clm_core.synthetic.records import SyntheticRecord, add_noise
 
 Storage = Literal["mcap", "sqlite3"]
 Style = Literal["stamped", "float64", "block"]
@@ -52,6 +52,39 @@ Style = Literal["stamped", "float64", "block"]
 T0_NS = 1_700_000_000_000_000_000
 #: Log time after the acquisition stamp of ``stamped`` messages [ns].
 _LOG_DELAY_NS = 150_000
+
+
+@dataclass(frozen=True)
+class BagFormat:
+    """How a record is written as a bag.
+
+    Attributes
+    ----------
+    storage : {'mcap', 'sqlite3'}
+        Storage plugin; mcap chunks are zstd-compressed when ``compress``.
+    style : {'stamped', 'float64', 'block'}
+        Message style of impact/receptance channels (module docstring).
+    block_size : int
+        Samples per ``Float64MultiArray`` block.
+    compress : bool
+        zstd chunk compression (mcap only).
+
+    Raises
+    ------
+    CalibrationError
+        Unknown storage or style.
+    """
+
+    storage: Storage = "mcap"
+    style: Style = "stamped"
+    block_size: int = 100
+    compress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.storage not in ("mcap", "sqlite3"):
+            raise CalibrationError(f"storage = {self.storage!r}: must be 'mcap' or 'sqlite3'")
+        if self.style not in ("stamped", "float64", "block"):
+            raise CalibrationError(f"style = {self.style!r}: must be stamped, float64 or block")
 
 
 @dataclass(frozen=True)
@@ -76,7 +109,7 @@ class SyntheticBag:
     record: SyntheticRecord
 
 
-def channel_map_for(rec: SyntheticRecord, style: Style = "stamped", block_size: int = 100) -> ChannelMap:
+def channel_map_for(rec: SyntheticRecord, style: Style = "stamped") -> ChannelMap:
     """The channel map describing a record written with :func:`write_bag`."""
     def entry(s: ChannelSpec, with_loc: bool) -> dict[str, Any]:
         if style == "block" and rec.method != "passby":
@@ -106,13 +139,7 @@ def plain(o: Any) -> Any:
 
 
 def write_record(
-    rec: SyntheticRecord,
-    path: str | Path,
-    storage: Storage = "mcap",
-    style: Style = "stamped",
-    block_size: int = 100,
-    compress: bool = True,
-    files: Mapping[str, str] | None = None,
+    rec: SyntheticRecord, path: str | Path, fmt: BagFormat, files: Mapping[str, str] | None = None
 ) -> Path:
     """Write a record as a bag directory with ``channels.yaml`` and the given extra text files.
 
@@ -122,8 +149,8 @@ def write_record(
         What to write (values in SI units; written in each channel's unit).
     path : path
         New bag directory (must not exist); it appears only when complete.
-    storage, style, block_size, compress
-        As in :func:`write_bag`.
+    fmt : BagFormat
+        Storage, message style, block size, compression.
     files : mapping name -> text, optional
         More files for the bag directory (``truth.yaml``, ``reference.yaml``).
 
@@ -135,18 +162,14 @@ def write_record(
     out = Path(path)
     if out.exists():
         raise CalibrationError(f"bag {str(out)!r} exists; choose a new path")
-    if storage not in ("mcap", "sqlite3"):
-        raise CalibrationError(f"storage = {storage!r}: must be 'mcap' or 'sqlite3'")
-    if style not in ("stamped", "float64", "block"):
-        raise CalibrationError(f"style = {style!r}: must be stamped, float64 or block")
-    cmap = channel_map_for(rec, style, block_size)
+    cmap = channel_map_for(rec, fmt.style)
     try:
-        with BagWriter(out, storage, compress=storage == "mcap" and compress) as writer:
+        with BagWriter(out, fmt.storage, compress=fmt.storage == "mcap" and fmt.compress) as writer:
             if rec.method == "passby":
                 _write_passby(writer, rec)
             else:
                 for sig in ([rec.force] if rec.force is not None else []) + list(rec.responses):
-                    _write_channel(writer, sig, style, block_size)
+                    _write_channel(writer, sig, fmt.style, fmt.block_size)
             (writer.directory / "channels.yaml").write_text(
                 "# Channel map of this bag (format: docs/calibration.md)\n"
                 + yaml.safe_dump(cmap.to_dict(), sort_keys=False)
@@ -174,19 +197,20 @@ def write_bag(
         What to write (values in SI units; written in each channel's unit).
     path : path
         New bag directory (must not exist).
-    storage : {'mcap', 'sqlite3'}
-        Storage plugin; mcap chunks are zstd-compressed when ``compress``.
-    style : {'stamped', 'float64', 'block'}
-        Message style of impact/receptance channels (module docstring).
-    block_size : int
-        Samples per ``Float64MultiArray`` block.
-    compress : bool
-        zstd chunk compression (mcap only).
+    storage, style, block_size, compress
+        The :class:`BagFormat` (storage plugin, message style, samples per
+        block, zstd compression of mcap chunks).
 
     Returns
     -------
     SyntheticBag
+
+    Raises
+    ------
+    CalibrationError
+        The bag path exists, or bad storage/style.
     """
+    fmt = BagFormat(storage, style, block_size, compress)
     truth = {
         "method": rec.method,
         "generator": "clm_core.synthetic",
@@ -196,7 +220,7 @@ def write_bag(
         "style": style if rec.method != "passby" else "clm_msgs",
     }
     text = "# Known values this synthetic bag was generated from (SI units)\n" + yaml.safe_dump(truth, sort_keys=False)
-    out = write_record(rec, path, storage, style, block_size, compress, {"truth.yaml": text})
+    out = write_record(rec, path, fmt, {"truth.yaml": text})
     return SyntheticBag(out, out / "channels.yaml", out / "truth.yaml", rec)
 
 
@@ -261,60 +285,40 @@ def _write_passby(writer: BagWriter, rec: SyntheticRecord) -> None:
         writer.write(cs, st + _LOG_DELAY_NS, data)
 
 
-def _simulated_bag(
+def write_simulated_bag(
     simulate: Callable[..., SyntheticRecord],
     path: str | Path,
-    snr_db: float | None,
-    seed: int,
-    storage: Storage,
-    style: Style,
-    keywords: Mapping[str, Any],
+    *,
+    snr_db: float | None = 30.0,
+    seed: int = 0,
+    storage: Storage = "mcap",
+    style: Style = "stamped",
+    **keywords: Any,
 ) -> SyntheticBag:
-    """``simulate(**keywords)``, noise at ``snr_db`` [dB] (None: none) with ``seed``, written by :func:`write_bag`."""
+    """Simulate a test, add noise, write the bag (:func:`write_bag`).
+
+    Parameters
+    ----------
+    simulate : callable
+        :func:`~clm_core.synthetic.records.simulate_impact`,
+        :func:`~clm_core.synthetic.records.simulate_receptance` or
+        :func:`~clm_core.synthetic.records.simulate_passby`.
+    path : path
+        New bag directory (must not exist).
+    snr_db : float or None
+        Noise level [dB] (:func:`~clm_core.synthetic.records.add_noise`); None: noise-free.
+    seed : int
+        Noise seed.
+    storage, style
+        As in :func:`write_bag` (pass-by records are written in the clm_msgs types whatever the style).
+    **keywords
+        Keywords of ``simulate`` (e.g. ``soil``, ``n_areas``, ``fs``, ``duration``, ``hit_times``).
+
+    Returns
+    -------
+    SyntheticBag
+    """
     rec = simulate(**keywords)
     if snr_db is not None:
         rec = add_noise(rec, snr_db, seed)
     return write_bag(rec, path, storage=storage, style=style)
-
-
-def write_impact_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    style: Style = "stamped",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a soil impact test (:func:`~clm_core.synthetic.records.simulate_impact`), add noise, write the bag.
-
-    ``snr_db=None`` writes the noise-free record. Other keywords go to
-    ``simulate_impact`` (``soil``, ``n_areas``, ``measured``, ``quantity``,
-    ``fs``, ``duration``, ``hit_times``, ``pulse``, ...).
-    """
-    return _simulated_bag(simulate_impact, path, snr_db, seed, storage, style, simulate)
-
-
-def write_receptance_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    style: Style = "stamped",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a rail receptance test (``simulate_receptance``), add noise, write the bag."""
-    return _simulated_bag(simulate_receptance, path, snr_db, seed, storage, style, simulate)
-
-
-def write_passby_bag(
-    path: str | Path,
-    *,
-    snr_db: float | None = 30.0,
-    seed: int = 0,
-    storage: Storage = "mcap",
-    **simulate: Any,
-) -> SyntheticBag:
-    """Simulate a pass-by (``simulate_passby``), add noise, write the bag (clm_msgs types)."""
-    return _simulated_bag(simulate_passby, path, snr_db, seed, storage, "stamped", simulate)

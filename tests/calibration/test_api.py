@@ -22,7 +22,7 @@ from clm_core.calibration.spectra import WindowSpec, transfer_functions
 from clm_core.frequency import dynamic_solve
 from clm_core.params import SoilParams, load_model, load_soil
 from clm_core.soil.chain import chain_damping_min_eigenvalue, chain_frequency_response, chain_response, laplace
-from clm_core.synthetic import add_noise, simulate_impact, write_bag, write_impact_bag, write_receptance_bag
+from clm_core.synthetic import add_noise, simulate_impact, simulate_receptance, write_bag, write_simulated_bag
 from clm_core.track import assemble
 
 TRUTH = load_soil("mevergnies")
@@ -33,7 +33,7 @@ NAMES = ("mf", "kf", "df", "kc", "dc")
 def impact_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The shipped impact test, regenerated: 41 areas, geophones (velocity), 1 kHz, 1 s, 30 dB."""
     path = tmp_path_factory.mktemp("impact") / "impact_mevergnies"
-    write_impact_bag(path, snr_db=30.0, seed=1, storage="mcap")
+    write_simulated_bag(simulate_impact, path, snr_db=30.0, seed=1, storage="mcap")
     return path
 
 
@@ -177,7 +177,7 @@ def test_one_sided_record_uses_the_symmetric_sums() -> None:
 @pytest.fixture(scope="module")
 def receptance_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("receptance") / "receptance_mevergnies"
-    write_receptance_bag(path, snr_db=30.0, seed=1)
+    write_simulated_bag(simulate_receptance, path, snr_db=30.0, seed=1)
     return path
 
 
@@ -221,6 +221,19 @@ def test_options_refuse_unknown_keys_and_bad_values() -> None:
     o = CalibrationOptions.from_yaml("fmax: 100\nwindow: {exp_end: 0.05}\nfit: kp, kb\n")
     assert o.fmax == 100.0 and o.window.exp_end == 0.05 and o.fit == ("kp", "kb")
     assert CalibrationOptions.from_mapping(o.to_dict()) == o
+
+
+def test_options_give_the_fit_controls_with_the_method_budget() -> None:
+    """FitControls holds the rules of max_nfev, ident_rel and cond_max; the options fill in the method's budget."""
+    from clm_core.calibration import CalibrationError
+    from clm_core.calibration.lsq import FitControls
+
+    assert CalibrationOptions().controls(60) == FitControls(max_nfev=60)
+    assert CalibrationOptions(max_nfev=7, ident_rel=0.5).controls(60) == FitControls(7, 0.5, 1e6)
+    for bad, match in (({"max_nfev": 0}, "max_nfev = 0: must be >= 1"), ({"ident_rel": 0.0}, "ident_rel = 0.0"),
+                       ({"cond_max": 1.0}, "cond_max = 1.0: must be > 1")):
+        with pytest.raises(CalibrationError, match=match):
+            CalibrationOptions.from_mapping(bad)
 
 
 def test_public_functions_document_every_argument() -> None:

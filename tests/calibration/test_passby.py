@@ -16,13 +16,13 @@ import pytest
 
 from clm_core.calibration import CalibrationError, calibrate
 from clm_core.params import load_model
-from clm_core.synthetic import write_passby_bag
+from clm_core.synthetic import simulate_passby, write_simulated_bag
 
 
 @pytest.fixture(scope="module")
 def passby_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("passby") / "passby"
-    write_passby_bag(path, snr_db=30.0, seed=2, storage="mcap")
+    write_simulated_bag(simulate_passby, path, snr_db=30.0, seed=2, storage="mcap")
     return path
 
 
