@@ -1,8 +1,8 @@
 """Arguments and helpers shared by the ``clm`` sub-commands.
 
 - :func:`add_command`: a sub-command's parser from its declaration (name,
-  help line, description, the function that runs it, the run settings it
-  takes); the ROS layer's commands (``clm_ros.commands``) can use it too;
+  the function that runs it, whose docstring is the command's help, the run
+  settings it takes); the ROS layer's commands (``clm_ros.commands``) use it too;
 - :func:`add_model_arguments` / :func:`model_from_args`: the track, soil and
   model options (from the settings schema) and the parameter set they describe;
 - :func:`output_dir`: the one rule for outputs: an existing, non-empty output
@@ -17,6 +17,7 @@ JSON files are written by :func:`clm_core.io.history.write_json` (the one JSON h
 from __future__ import annotations
 
 import argparse
+import inspect
 import shutil
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -33,11 +34,13 @@ def add_command(
     name: str,
     run: Callable[[argparse.Namespace], int],
     *,
-    help: str,
-    description: str,
     settings: Iterable[str] = (),
 ) -> argparse.ArgumentParser:
     """Add one sub-command to ``sub`` and return its parser, ready for the command's own options.
+
+    The command's text is the docstring of ``run``: its summary line is the
+    line of ``clm --help`` (shown with a lower-case first letter and no full
+    stop), the paragraphs after it are the description of ``clm NAME --help``.
 
     Parameters
     ----------
@@ -46,11 +49,8 @@ def add_command(
     name : str
         The sub-command (``clm NAME``).
     run : callable
-        Runs the parsed arguments and returns the exit code (``args.func``).
-    help : str
-        One line for ``clm --help``.
-    description : str
-        The paragraph of ``clm NAME --help``.
+        Runs the parsed arguments and returns the exit code (``args.func``);
+        documented for the user (see above).
     settings : iterable of str
         Run settings (:data:`clm_core.settings.SETTINGS`) whose options come
         first, with the schema's defaults (:func:`add_settings`).
@@ -59,7 +59,10 @@ def add_command(
     -------
     argparse.ArgumentParser
     """
-    p: argparse.ArgumentParser = sub.add_parser(name, help=help, description=description)
+    summary, _, description = (inspect.getdoc(run) or "").partition("\n\n")
+    summary = " ".join(summary.split()).removesuffix(".")
+    p: argparse.ArgumentParser = sub.add_parser(name, help=summary[:1].lower() + summary[1:],
+                                                description=" ".join(description.split()))
     p.set_defaults(func=run)
     add_settings(p, settings)
     return p

@@ -34,14 +34,7 @@ from clm_core.errors import InputError
 
 def register(sub: Any) -> None:
     """Add the ``calibrate`` sub-command."""
-    p = add_command(
-        sub, "calibrate", run,
-        help="fit soil/track parameters to a recorded bag (impact, receptance, pass-by)",
-        description="Fit model parameters to a rosbag2 bag (mcap or sqlite3): a soil impact test (CLM soil), a "
-        "hammer test on the rail (track parameters) or a pass-by (output error through the time-domain engine). "
-        "The channel map (topic -> place, quantity, unit) is --channels or channels.yaml in the bag directory; "
-        "format in docs/calibration.md.",
-    )
+    p = add_command(sub, "calibrate", run)
     p.add_argument("bag", help="rosbag2 bag directory or .mcap file, or a folder of bags (one row per bag, on the "
                    "study engine)")
     p.add_argument("--method", required=True, choices=METHODS, help="test type")
@@ -70,7 +63,12 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Calibrate and write the outputs; print a one-line summary per parameter."""
+    """Fit soil/track parameters to a recorded bag (impact, receptance, pass-by).
+
+    Fit model parameters to a rosbag2 bag (mcap or sqlite3): a soil impact test (CLM soil), a hammer test on the
+    rail (track parameters) or a pass-by (output error through the time-domain engine). The channel map (topic ->
+    place, quantity, unit) is --channels or channels.yaml in the bag directory; format in docs/calibration.md.
+    """
     from clm_core.calibration.api import calibrate
     from clm_core.calibration.report import write_outputs
 

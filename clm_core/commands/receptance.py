@@ -22,12 +22,7 @@ SLEEPERS = 41
 
 def register(sub: Any) -> None:
     """Add the ``receptance`` sub-command."""
-    p = add_command(
-        sub, "receptance", run,
-        help="track receptances H11..H51 in the frequency domain",
-        description="Rail receptances above sleepers 1..5 for a force above sleeper 1 "
-        "(the central sleeper), by direct banded solution.",
-    )
+    p = add_command(sub, "receptance", run)
     add_model_arguments(p)
     p.add_argument("--sleepers", type=int, default=SLEEPERS,
                    help=f"sleepers of the finite track [-]; >= 21 (10 each side of the loaded one, paper Sec. 5); "
@@ -110,7 +105,11 @@ def receptance_report(
 
 
 def run(args: argparse.Namespace) -> int:
-    """Compute and write receptance.csv, receptance.png and summary.json."""
+    """Track receptances H11..H51 in the frequency domain.
+
+    Rail receptances above sleepers 1..5 for a force above sleeper 1 (the central sleeper), by direct banded
+    solution.
+    """
     check_band(args.fmin, args.fmax, args.df, args.sleepers)
     params = model_from_args(args)
     with output_dir(args.out, args.overwrite) as d:

@@ -22,19 +22,18 @@ from clm_core.commands._options import add_overwrite
 
 def register(sub: Any) -> None:
     """Add the ``report`` sub-command."""
-    p = add_command(
-        sub, "report", run,
-        help="frequency-domain report of every track and soil preset",
-        description="Receptances H11..H51 of every track preset on every soil preset (rigid ground, Lysmer and "
-        "CLM soils) and the CLM soil chain of every soil (Eq. 16/18 sums, pulse response, delays), each in its "
-        "own directory under --out, with index.json listing the resonance peaks and the delays.",
-    )
+    p = add_command(sub, "report", run)
     p.add_argument("--out", default="results/report", help="output directory (default results/report)")
     add_overwrite(p)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write every receptance and soil-chain report; return the exit code."""
+    """Frequency-domain report of every track and soil preset.
+
+    Receptances H11..H51 of every track preset on every soil preset (rigid ground, Lysmer and CLM soils) and the CLM
+    soil chain of every soil (Eq. 16/18 sums, pulse response, delays), each in its own directory under --out, with
+    index.json listing the resonance peaks and the delays.
+    """
     from clm_core.commands.receptance import receptance_report
     from clm_core.commands.soil_chain import eq21_geometry, shear_wave_speed, soil_chain_report, soil_from_args
     from clm_core.io.history import write_json

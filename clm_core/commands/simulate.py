@@ -40,14 +40,7 @@ PASSED_MARGIN_BAYS = 5
 
 def register(sub: Any) -> None:
     """Add the ``simulate`` sub-command."""
-    p = add_command(
-        sub, "simulate", run,
-        help="moving wheel loads in the time domain (streaming, moving window)",
-        description="Time-domain response of the track-soil model to moving wheel loads: sleeper soil "
-        "forces, rail, sleeper and soil deflections, on a simulated window of sleepers that follows the "
-        "wheels (Newmark average acceleration). Constant moving loads by default, a wheel-load time "
-        "history with --loads-file, or a multibody vehicle with --vehicle.",
-    )
+    p = add_command(sub, "simulate", run)
     add_model_arguments(p)
     add_window_arguments(p, automatic_sleepers="(automatic: 61, or more when the axles need it: the wheels stay "
                          "lead sleepers from its front and 10 from its rear)")
@@ -110,7 +103,12 @@ def _window_size(span_bays: float, lead: int | None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the simulation and write the outputs; return 0."""
+    """Moving wheel loads in the time domain (streaming, moving window).
+
+    Time-domain response of the track-soil model to moving wheel loads: sleeper soil forces, rail, sleeper and soil
+    deflections, on a simulated window of sleepers that follows the wheels (Newmark average acceleration). Constant
+    moving loads by default, a wheel-load time history with --loads-file, or a multibody vehicle with --vehicle.
+    """
     t_setup = time.perf_counter()
     if args.vehicle and args.loads_file:
         raise InputError("--vehicle and --loads-file: give one of them (the vehicle computes its own wheel loads)")

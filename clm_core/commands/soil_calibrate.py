@@ -35,20 +35,10 @@ from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError, PresetError
 from clm_core.io.history import write_json
 
-HELP = "fit CLM soil parameters to a rigorous half-space computation of a soil profile"
-
 
 def register(subparsers: Any) -> None:
     """Add the ``soil-calibrate`` sub-command (with ``--impact-bag``) to ``subparsers``."""
-    p = add_command(
-        subparsers, "soil-calibrate", run,
-        help=HELP,
-        description=(
-            "Rigorous (Green's function + boundary element) flexibility of 2n+1 rigid contact areas "
-            "(2.5 m x 0.285 m) on a layered viscoelastic half-space, and a band/norm-explicit fit of the "
-            "CLM parameters to Eq. (16) and (18) of Kouroussis et al. (2011)."
-        ),
-    )
+    p = add_command(subparsers, "soil-calibrate", run)
     p.add_argument(
         "--profile", required=True, help="soil preset name (mevergnies, soft, medium, stiff, haren) or YAML file"
     )
@@ -283,7 +273,12 @@ def _check_impact_bag(args: argparse.Namespace) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the calibration (and write the reference impact bag with ``--impact-bag``); returns 0 on success."""
+    """Fit CLM soil parameters to a rigorous half-space computation of a soil profile.
+
+    Rigorous (Green's function + boundary element) flexibility of 2n+1 rigid contact areas (2.5 m x 0.285 m) on a
+    layered viscoelastic half-space, and a band/norm-explicit fit of the CLM parameters to Eq. (16) and (18) of
+    Kouroussis et al. (2011).
+    """
     if not getattr(args, "impact_bag", False):
         return _run_calibration(args)
     from clm_core.synthetic.reference import RigorousReference, write_reference_impact_bag

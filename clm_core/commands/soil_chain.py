@@ -19,12 +19,7 @@ from clm_core.params import SOIL_MODELS, SoilModel, SoilParams
 
 def register(sub: Any) -> None:
     """Add the ``soil-chain`` sub-command."""
-    p = add_command(
-        sub, "soil-chain", run,
-        help="the CLM soil chain alone: impedance sums and pulse response",
-        description="Chain of 2n+1 contact areas, centre one loaded: the impedances over the "
-        "total and alternating sums against Eq. (16)/(18), and the response to the Eq. (1) pulse.",
-    )
+    p = add_command(sub, "soil-chain", run)
     add_setting(p, "soil")
     p.add_argument("--model", default="clm", choices=[m for m in SOIL_MODELS if m != "rigid"],
                    help="foundation model of the areas (default clm)")
@@ -180,7 +175,11 @@ def shear_wave_speed(soil: str) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write chain.csv, chain_time.csv, chain.png and summary.json."""
+    """The CLM soil chain alone: impedance sums and pulse response.
+
+    Chain of 2n+1 contact areas, centre one loaded: the impedances over the total and alternating sums against Eq.
+    (16)/(18), and the response to the Eq. (1) pulse.
+    """
     if args.areas < 3 or args.areas % 2 == 0:
         raise ParameterError(f"--areas {args.areas}: must be odd and >= 3 (2n+1 areas)")
     soil = soil_from_args(args.soil, args.model, args.set)

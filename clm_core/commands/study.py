@@ -47,18 +47,9 @@ def _positive_int(text: str) -> int:
     return n
 
 
-_DESCRIPTION = (
-    "Run a parametric study: a grid or a seeded random sample over speeds, soils, track and soil parameters, "
-    "vehicles and irregularity seeds, each case a coupled vehicle-track run (clm simulate --vehicle). Local dask "
-    "cluster by default (one worker process per core), or a remote dask.distributed scheduler. Resumable: the same "
-    "command after an interruption runs only the missing cases. Format of STUDY.yaml: docs/studies.md."
-)
-
-
 def register(sub: Any) -> None:
     """Add the ``study`` sub-command."""
-    help_text = "parametric study (grid or random sample of vehicle runs) on dask.distributed"
-    p = add_command(sub, "study", run, help=help_text, description=_DESCRIPTION)
+    p = add_command(sub, "study", run)
     p.add_argument("study", metavar="STUDY.yaml", help="study file (docs/studies.md; examples/studies/)")
     p.add_argument("--out", default=None, help="output directory (an earlier run's directory is resumed); required "
                    "unless --dry-run")
@@ -69,7 +60,13 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the study and print a summary; return 0 (failed cases are reported in their rows)."""
+    """Parametric study (grid or random sample of vehicle runs) on dask.distributed.
+
+    Run a parametric study: a grid or a seeded random sample over speeds, soils, track and soil parameters,
+    vehicles and irregularity seeds, each case a coupled vehicle-track run (clm simulate --vehicle). Local dask
+    cluster by default (one worker process per core), or a remote dask.distributed scheduler. Resumable: the same
+    command after an interruption runs only the missing cases. Format of STUDY.yaml: docs/studies.md.
+    """
     from pathlib import Path
 
     from clm_core.studies import load_study, run_study

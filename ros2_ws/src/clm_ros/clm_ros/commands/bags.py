@@ -14,24 +14,14 @@ from clm_core.commands._options import add_setting
 
 def register(sub: Any) -> None:
     """Add the ``record`` and ``play`` sub-commands."""
-    r = add_command(
-        sub, "record", run_record,
-        help="record topics to a rosbag2 bag (mcap or sqlite3)",
-        description="Raw subscriptions (reliable, keep-all) written to a bag until Ctrl-C, --duration or --count.",
-    )
+    r = add_command(sub, "record", run_record)
     r.add_argument("topics", nargs="+", help="TOPIC or TOPIC:TYPE (type default: discovered on the graph)")
     r.add_argument("--out", required=True, help="output bag directory (must not exist; appears when recording stops)")
     add_setting(r, "storage")
     r.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     r.add_argument("--count", type=int, default=None, help="stop after this many messages on the first topic")
     r.add_argument("--discovery-timeout", type=float, default=20.0, help="wait for topic types [s]")
-    p = add_command(
-        sub, "play", run_play,
-        help="publish a bag's messages (real time, scaled, or flow-controlled)",
-        description="Publishes the messages of a rosbag2 bag (mcap or sqlite3) on their topics, with their "
-        "recorded timing (--rate 1), scaled (--rate 2: twice as fast), or as fast as a node answers them "
-        "(--rate 0: at most --max-in-flight messages without an answer on --ack-topic). Prints the counts sent.",
-    )
+    p = add_command(sub, "play", run_play)
     p.add_argument("bag", help="rosbag2 bag (directory, .mcap or .db3)")
     p.add_argument("--topics", nargs="*", default=None, help="topics to play (default all)")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor (1 real time; 0 as fast as answered)")
@@ -50,7 +40,10 @@ def _init() -> Any:
 
 
 def run_record(args: argparse.Namespace) -> int:
-    """Record until stopped; print the counts as JSON."""
+    """Record topics to a rosbag2 bag (mcap or sqlite3).
+
+    Raw subscriptions (reliable, keep-all) written to a bag until Ctrl-C, --duration or --count.
+    """
     rclpy = _init()
     from clm_ros.bag_tools import BagRecorder
 
@@ -90,7 +83,12 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_play(args: argparse.Namespace) -> int:
-    """Play a bag; print the counts as JSON."""
+    """Publish a bag's messages (real time, scaled, or flow-controlled).
+
+    Publishes the messages of a rosbag2 bag (mcap or sqlite3) on their topics, with their recorded timing
+    (--rate 1), scaled (--rate 2: twice as fast), or as fast as a node answers them (--rate 0: at most
+    --max-in-flight messages without an answer on --ack-topic). Prints the counts sent.
+    """
     rclpy = _init()
     from clm_ros.bag_tools import play_bag
 

@@ -16,20 +16,18 @@ from clm_ros.run_settings import NAMES
 
 def register(sub: Any) -> None:
     """Add the ``demo`` sub-command."""
-    p = add_command(
-        sub, "demo", run,
-        help="end-to-end demo: vehicle and track nodes over DDS, recorded and plotted",
-        description="Starts the vehicle simulator node and the track-soil node as separate "
-        "processes (loopback DDS), records the run to a bag and renders plots in --out.",
-        settings=NAMES,
-    )
+    p = add_command(sub, "demo", run, settings=NAMES)
     p.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
     add_overwrite(p)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the demo and print its summary."""
+    """End-to-end demo: vehicle and track nodes over DDS, recorded and plotted.
+
+    Starts the vehicle simulator node and the track-soil node as separate processes (loopback DDS), records the run
+    to a bag and renders plots in --out.
+    """
     from clm_core.commands._common import check_output, quantity
     from clm_ros.launcher import run_demo
     from clm_ros.run_settings import RunSettings

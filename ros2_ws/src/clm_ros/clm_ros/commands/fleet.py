@@ -18,15 +18,7 @@ from clm_ros.run_settings import NAMES
 
 def register(sub: Any) -> None:
     """Add the ``fleet`` sub-command."""
-    p = add_command(
-        sub, "fleet", run,
-        help="many trains online: N vehicle + track node pairs over DDS, each in its namespace /train_i",
-        description="Starts N vehicle simulator + track-soil node pairs as separate processes, pair i in the "
-        "namespace /train_i, all in one ROS domain; records them to DIR/fleet_bag, checks every pair (each "
-        "wheel-load message answered once, in order; answers equal to the offline replay of its recorded wheel "
-        "loads) and writes per-train and overall figures to DIR/summary.json.",
-        settings=("fleet_trains", "fleet_first_index", *NAMES),
-    )
+    p = add_command(sub, "fleet", run, settings=("fleet_trains", "fleet_first_index", *NAMES))
     p.add_argument("--out", default="results/fleet", help="output directory (default results/fleet)")
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
     p.add_argument("--no-record", dest="record", action="store_false",
@@ -46,7 +38,13 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the fleet and print one line per train and the overall figures."""
+    """Many trains online: N vehicle + track node pairs over DDS, each in its namespace /train_i.
+
+    Starts N vehicle simulator + track-soil node pairs as separate processes, pair i in the namespace /train_i, all
+    in one ROS domain; records them to DIR/fleet_bag, checks every pair (each wheel-load message answered once, in
+    order; answers equal to the offline replay of its recorded wheel loads) and writes per-train and overall figures
+    to DIR/summary.json.
+    """
     from clm_core.commands._common import check_output, quantity
     from clm_ros.errors import ClmRosError
     from clm_ros.fleet import check_fleet, namespaces, run_fleet

@@ -13,13 +13,7 @@ from clm_core.settings import ONLINE_POLICY
 
 def register(sub: Any) -> None:
     """Add the ``replay`` sub-command."""
-    p = add_command(
-        sub, "replay", run,
-        help="run a wheel-load bag through the track model offline, write the responses as a bag",
-        description="Reads clm_msgs/WheelLoads from IN_BAG (mcap or sqlite3), runs them through the same "
-        "code as the track node (no middleware, faster than real time) and writes OUT_BAG with the inputs "
-        "and the sleeper and wheel-rail responses.",
-    )
+    p = add_command(sub, "replay", run)
     p.add_argument("in_bag", help="input rosbag2 bag (directory, .mcap or .db3)")
     p.add_argument("--out", required=True, help="output bag directory (must not exist, or --overwrite)")
     p.add_argument("--topic", default=None, help="wheel-load topic (default: the only WheelLoads topic)")
@@ -50,7 +44,11 @@ def _message_count(path: str, topic: str | None) -> int | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Replay and print a one-line summary."""
+    """Run a wheel-load bag through the track model offline, write the responses as a bag.
+
+    Reads clm_msgs/WheelLoads from IN_BAG (mcap or sqlite3), runs them through the same code as the track node (no
+    middleware, faster than real time) and writes OUT_BAG with the inputs and the sleeper and wheel-rail responses.
+    """
     import shutil
     from pathlib import Path
 
