@@ -291,24 +291,13 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     ref = RigorousReference.from_soil_calibrate_output(out)
     remove_bag(bag_path, "--out")
-    bag = write_reference_impact_bag(
-        bag_path,
-        reference=ref,
-        snr_db=args.bag_snr,
-        seed=args.bag_seed,
-        storage=args.storage,
-        fs=IMPACT_BAG_FS,
-    )
+    # the bag's settings: written with them, and recorded as written in summary.json
+    settings: dict[str, Any] = {"storage": args.storage, "snr_db": args.bag_snr, "seed": args.bag_seed}
+    bag = write_reference_impact_bag(bag_path, reference=ref, fs=IMPACT_BAG_FS, **settings)
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text(encoding="utf-8"))
     summary["files"] = [*summary.get("files", []), IMPACT_BAG_DIR]
-    summary["impact_bag"] = {
-        "path": IMPACT_BAG_DIR,
-        "storage": args.storage,
-        "snr_db": args.bag_snr,
-        "seed": args.bag_seed,
-        "fs_hz": IMPACT_BAG_FS,
-    }
+    summary["impact_bag"] = {"path": IMPACT_BAG_DIR, **settings, "fs_hz": IMPACT_BAG_FS}
     write_json(summary_path, summary)
     size = sum(p.stat().st_size for p in bag.path.iterdir())
     snr = "noise-free" if args.bag_snr is None else f"SNR {args.bag_snr:g} dB"
