@@ -36,13 +36,7 @@ that lie on each other are told apart by dashes, markers and drawing order.
 """
 
 from clm_core.io.plots._base import MAX_WHEEL_PANELS, figure_observers
-from clm_core.io.plots.calibration import (
-    plot_calibration,
-    plot_soil_calibration,
-    plot_sums,
-    plot_time_histories,
-    plot_transfer_functions,
-)
+from clm_core.io.plots.calibration import plot_calibration, plot_soil_calibration
 from clm_core.io.plots.frequency import plot_chain, plot_receptance
 from clm_core.io.plots.runs import plot_demo, plot_run, plot_vehicle_run
 from clm_core.io.plots.studies import plot_critical_speed, plot_exceedance, plot_study
@@ -59,8 +53,5 @@ __all__ = [
     "plot_run",
     "plot_soil_calibration",
     "plot_study",
-    "plot_sums",
-    "plot_time_histories",
-    "plot_transfer_functions",
     "plot_vehicle_run",
 ]

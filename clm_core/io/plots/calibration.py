@@ -30,23 +30,11 @@ def _pick_channels(result: CalibrationResult, k_max: int = 6) -> list[int]:
     return list(range(min(k_max, len(chans))))
 
 
-def plot_transfer_functions(result: CalibrationResult, path: str | Path) -> Figure | None:
+def _transfer_functions(result: CalibrationResult, path: Path) -> Figure | None:
     """Amplitude [m/N] and phase [deg] of measured (solid) and fitted (dashed) receptances of a few channels.
 
     Drawn when the fit used spectra (impact and receptance tests); the
     Lysmer and Winkler comparison fits of area 0 are dotted.
-
-    Parameters
-    ----------
-    result : CalibrationResult
-        What :func:`clm_core.calibration.calibrate` returned.
-    path : path
-        PNG file.
-
-    Returns
-    -------
-    Figure or None
-        The figure written, or None (nothing written) when it does not apply.
     """
     from clm_core.calibration.impact import SoilFit
 
@@ -77,22 +65,10 @@ def plot_transfer_functions(result: CalibrationResult, path: str | Path) -> Figu
     return fig
 
 
-def plot_sums(result: CalibrationResult, path: str | Path) -> Figure | None:
+def _sums(result: CalibrationResult, path: Path) -> Figure | None:
     """Impact test: the impedances over the total and alternating sums, Eq. (16) and (18), measured and fitted.
 
     Drawn for an impact test with a soil fit and measured neighbours.
-
-    Parameters
-    ----------
-    result : CalibrationResult
-        What :func:`clm_core.calibration.calibrate` returned.
-    path : path
-        PNG file.
-
-    Returns
-    -------
-    Figure or None
-        The figure written, or None (nothing written) when it does not apply.
     """
     from clm_core.calibration.impact import SoilFit, measured_sums
 
@@ -124,22 +100,10 @@ def plot_sums(result: CalibrationResult, path: str | Path) -> Figure | None:
     return fig
 
 
-def plot_time_histories(result: CalibrationResult, path: str | Path) -> Figure | None:
+def _time_histories(result: CalibrationResult, path: Path) -> Figure | None:
     """Measured time histories of a few channels against the fitted model driven by the measured input.
 
     Drawn when the calibration produced a time model.
-
-    Parameters
-    ----------
-    result : CalibrationResult
-        What :func:`clm_core.calibration.calibrate` returned.
-    path : path
-        PNG file.
-
-    Returns
-    -------
-    Figure or None
-        The figure written, or None (nothing written) when it does not apply.
     """
     tm = result.time_model
     if tm is None:
@@ -173,12 +137,15 @@ def plot_calibration(result: CalibrationResult, out: str | Path) -> list[str]:
 
     ``transfer_functions.png`` (when spectra were fitted), ``sums.png``
     (impact test with a soil fit), ``time_histories.png`` (when a fitted
-    time model exists).
+    time model exists). ``result`` is what :func:`clm_core.calibration.calibrate`
+    returned. Each figure is drawn by a function of ``(result, path)`` that
+    writes the PNG file ``path`` and returns the figure, or writes nothing and
+    returns None when the figure does not apply.
     """
     d = Path(out)
     names = []
-    for name, fn in (("transfer_functions.png", plot_transfer_functions), ("sums.png", plot_sums),
-                     ("time_histories.png", plot_time_histories)):
+    for name, fn in (("transfer_functions.png", _transfer_functions), ("sums.png", _sums),
+                     ("time_histories.png", _time_histories)):
         if fn(result, d / name) is not None:
             names.append(name)
     return names
