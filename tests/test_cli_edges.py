@@ -6,10 +6,12 @@ depends on a terminal (progress bars).
 
 from __future__ import annotations
 
+import inspect
 import json
 import re
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -76,9 +78,14 @@ def test_help_and_defaults_come_from_the_schema() -> None:
 
 
 def test_every_command_has_a_description() -> None:
-    sub = next(a for a in build_parser()._actions if a.dest == "command").choices  # type: ignore[attr-defined]
+    action: Any = next(a for a in build_parser()._actions if a.dest == "command")
+    sub = action.choices
+    helps = {c.dest: c.help for c in action._choices_actions}
     for name, p in sub.items():
         assert p.description and len(p.description) > 40, name
+        # both from the docstring of the function that runs the command (add_command)
+        doc = " ".join((inspect.getdoc(p.get_default("func")) or "").split())
+        assert helps[name] and doc.lower().startswith(helps[name].lower() + ".") and doc.endswith(p.description), name
     assert {"report", "simulate", "receptance", "soil-chain", "calibrate", "soil-calibrate"} <= set(sub)
 
 

@@ -40,7 +40,8 @@ def add_command(
 
     The command's text is the docstring of ``run``: its summary line is the
     line of ``clm --help`` (shown with a lower-case first letter and no full
-    stop), the paragraphs after it are the description of ``clm NAME --help``.
+    stop), the rest is the description of ``clm NAME --help`` (one paragraph:
+    argparse reflows it).
 
     Parameters
     ----------
