@@ -298,6 +298,9 @@ def test_cancel_queue_reject_and_service(ros_python, client_factory) -> None:  #
     assert b.handle.accepted
     c.wait_for(lambda: "queued" in b.stages(), "queued feedback of B")
     assert b.feedback[0][1].fraction == 0.0 and "1 calibration(s) ahead" in b.feedback[0][1].message
+    # the goal's status comes on the action's status topic, which need not arrive before its feedback (seen once
+    # in CI: status still UNKNOWN when the 'queued' feedback was in)
+    c.wait_for(lambda: b.handle.status != GoalStatus.STATUS_UNKNOWN, "a status of B")
     assert b.handle.status == GoalStatus.STATUS_ACCEPTED
     rejected = c.send(IMPACT_BAG)
     assert not rejected.handle.accepted
