@@ -18,6 +18,33 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import Executor, SingleThreadedExecutor
 
+#: Seconds after which a query (get_state, parameters) is sent again when no answer has come. A service that
+#: takes a request before it has matched the new client's response reader drops the response ("failed to send
+#: response (timeout): client will not receive response", rmw_fastrtps; seen once in CI: a get_state never
+#: answered in 120 s); the request sent again goes through the matched path. Only for requests that change
+#: nothing: a transition sent twice would be a second transition.
+RESEND_QUERY = 2.0
+
+
+def answer(cli: Any, request: Any, until: Callable[[Callable[[], bool], float], None], timeout: float,
+           resend_after: float | None = None) -> Any:
+    """The response of ``cli`` to ``request``; sent again every ``resend_after`` s while unanswered (None: once).
+
+    ``until(done, seconds)`` spins until ``done()`` or ``seconds`` have passed; :class:`TimeoutError` after
+    ``timeout`` s in all.
+    """
+    deadline = time.monotonic() + timeout
+    fut = cli.call_async(request)
+    while True:
+        left = deadline - time.monotonic()
+        until(fut.done, left if resend_after is None else min(resend_after, left))
+        if fut.done():
+            return fut.result()
+        if time.monotonic() >= deadline:
+            raise TimeoutError(f"no answer of {cli.srv_name} within {timeout:g} s")
+        cli.remove_pending_request(fut)
+        fut = cli.call_async(request)
+
 
 class ClientNode:
     """rclpy node ``name`` in ``domain_id`` (loopback), spun in the test's thread.
@@ -90,14 +117,22 @@ class ClientNode:
                 pytest.fail(f"{what}: not within {timeout} s {self.progress_note()}".rstrip() + self._outputs())
             self.exec.spin_once(timeout_sec=self.spin_period)
 
-    def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = None) -> Any:
-        """Call service ``name`` once it is there; the response."""
+    def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = None,
+             resend_after: float | None = None) -> Any:
+        """Call service ``name`` once it is there; the response (``resend_after``: see :func:`answer`)."""
         cli = self.node.create_client(srv_type, name)
+        timeout = self.timeout if timeout is None else timeout
         try:
             self.wait_for(cli.service_is_ready, f"service {name}", timeout)
-            fut = cli.call_async(request)
-            self.wait_for(fut.done, f"answer of {name}", timeout)
-            return fut.result()
+
+            def until(done: Callable[[], bool], seconds: float) -> None:
+                end = time.monotonic() + seconds
+                self.wait_for(lambda: done() or time.monotonic() > end, f"answer of {name}", seconds + 1.0)
+
+            try:
+                return answer(cli, request, until, timeout, resend_after)
+            except TimeoutError as exc:
+                pytest.fail(f"{exc} {self.progress_note()}".rstrip() + self._outputs())
         finally:
             self.node.destroy_client(cli)
 

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import rclpy
+from clientnode import RESEND_QUERY, answer
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
@@ -165,15 +166,21 @@ class Driver:
 
     # ------------------------------------------------------------------ services
 
-    def call(self, srv_type: Any, name: str, request: Any, timeout: float = 60.0) -> Any:
-        """Call the node's service ``name`` (e.g. ``change_state``) and return the response."""
+    def call(self, srv_type: Any, name: str, request: Any, timeout: float = 60.0,
+             resend_after: float | None = None) -> Any:
+        """Call the node's service ``name`` (e.g. ``change_state``) and return the response (``resend_after``:
+        see :func:`clientnode.answer`)."""
         cli = self._clients.get(name)
         if cli is None:
             cli = self._clients[name] = self.node.create_client(srv_type, f"{NODE}/{name}")
         self.wait_for(cli.service_is_ready, timeout, f"service {name}")
-        fut = cli.call_async(request)
-        self.wait_for(fut.done, timeout, f"{name} answer")
-        return fut.result()
+
+        def until(done: Callable[[], bool], seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while not done() and time.monotonic() < end:
+                self.spin(0.02)
+
+        return answer(cli, request, until, timeout, resend_after)
 
     def transition(self, name: str, timeout: float = 60.0) -> bool:
         """Trigger lifecycle transition ``name`` (configure, activate, ..., active_shutdown)."""
@@ -182,7 +189,8 @@ class Driver:
 
     def state(self) -> str:
         """The node's lifecycle state label."""
-        return str(self.call(GetState, "get_state", GetState.Request()).current_state.label)
+        return str(self.call(GetState, "get_state", GetState.Request(), resend_after=RESEND_QUERY)
+                   .current_state.label)
 
     def set_double(self, name: str, value: float) -> Any:
         """Set one DOUBLE parameter; the ``SetParametersResult``."""

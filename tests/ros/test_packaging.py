@@ -391,7 +391,7 @@ def test_foxglove_layout_of_the_demo() -> None:
 # ---------------------------------------------------------------------------------------------- nodes + demo.yaml
 
 try:
-    from clientnode import ClientNode
+    from clientnode import RESEND_QUERY, ClientNode
     from clm_msgs.msg import WheelLoads
     from diagnostic_msgs.msg import DiagnosticArray
     from lifecycle_msgs.srv import GetState
@@ -414,12 +414,14 @@ class Client(ClientNode):
     def __init__(self, domain_id: int, procs: list[subprocess.Popen[str]]) -> None:
         super().__init__(domain_id, procs, "clm_test_packaging_client", ok_exits=(0,), timeout=TIMEOUT)
 
-    def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = START_TIMEOUT) -> Any:
-        return super().call(srv_type, name, request, timeout)
+    def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = START_TIMEOUT,
+             resend_after: float | None = None) -> Any:
+        return super().call(srv_type, name, request, timeout, resend_after)
 
     def parameters(self, node: str, names: list[str]) -> dict[str, Any]:
         """Values of ``names`` on ``node``; None for a parameter the node does not declare."""
-        res = self.call(GetParameters, f"{node}/get_parameters", GetParameters.Request(names=names))
+        res = self.call(GetParameters, f"{node}/get_parameters", GetParameters.Request(names=names),
+                        resend_after=RESEND_QUERY)
         out: dict[str, Any] = {}
         for name, v in zip(names, res.values):
             out[name] = getattr(v, _VALUE_FIELD[v.type]) if v.type in _VALUE_FIELD else None
@@ -481,7 +483,7 @@ def test_track_node_takes_every_demo_parameter(client, ros_env: dict[str, str], 
     c.node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     for name in (f"/{TRACK_NODE}", f"/line1/{TRACK_NODE}"):
         _assert_applied(expected, c.parameters(name, sorted(expected)), name)
-        state = c.call(GetState, f"{name}/get_state", GetState.Request())
+        state = c.call(GetState, f"{name}/get_state", GetState.Request(), resend_after=RESEND_QUERY)
         assert state.current_state.label == "active", f"{name} autostart: {state.current_state.label}"
     # it runs: both publish diagnostics at the file's period
     c.wait_for(lambda: len(diags) >= 4, "/diagnostics of the track nodes", TIMEOUT)

@@ -27,7 +27,7 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from clientnode import ClientNode
+from clientnode import RESEND_QUERY, ClientNode
 from clm_msgs.msg import SleeperResponse, WheelLoads
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
@@ -82,7 +82,8 @@ class Watcher(ClientNode):
                 f"{self.diag[-1:]}")
 
     def state(self, node: str) -> str:
-        return str(self.call(GetState, f"{node}/get_state", GetState.Request()).current_state.label)
+        return str(self.call(GetState, f"{node}/get_state", GetState.Request(), resend_after=RESEND_QUERY)
+                   .current_state.label)
 
     def transition(self, node: str, tid: int) -> bool:
         return bool(self.call(ChangeState, f"{node}/change_state",
