@@ -35,10 +35,12 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["MAX_PRIORITY", "Scheduling", "apply_fifo", "thread_scheduling"]
+from clm_core.settings import REALTIME_PRIORITY
 
-#: Highest priority a node may ask for (99 is left to the kernel's watchdogs).
-MAX_PRIORITY = 98
+__all__ = ["MAX_PRIORITY", "NOT_APPLIED", "Scheduling", "apply_fifo", "thread_scheduling"]
+
+#: Highest priority a node may ask for: the setting's bound (99 is left to the kernel's watchdogs).
+MAX_PRIORITY = int(REALTIME_PRIORITY.maximum or 0)
 
 _TASKS = Path("/proc/self/task")
 
@@ -56,8 +58,8 @@ class Scheduling:
     threads : int
         Threads whose policy was set.
     reason : str
-        Why the process runs at normal priority although a priority was
-        asked for (``""`` when it got it or none was asked).
+        Why the process runs at normal priority (``""`` when it got the
+        priority, or none was asked).
     """
 
     requested: int
@@ -72,7 +74,11 @@ class Scheduling:
             return f"SCHED_FIFO {self.priority} ({self.threads} threads)"
         if self.requested:
             return f"normal (SCHED_FIFO {self.requested} refused: {self.reason})"
-        return "normal (realtime_priority = 0)"
+        return f"normal ({self.reason or 'realtime_priority = 0'})"
+
+
+#: A node's scheduling until :func:`clm_ros.node_main.run_node` has applied its ``realtime_priority``.
+NOT_APPLIED = Scheduling(0, 0, reason="not set by run_node")
 
 
 def _thread_ids() -> list[int]:

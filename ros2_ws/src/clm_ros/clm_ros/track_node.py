@@ -89,7 +89,7 @@ from clm_ros.diagnostics import (
 )
 from clm_ros.node_main import StopSignals, run_node
 from clm_ros.parameters import declare_model_parameters, declare_settings
-from clm_ros.realtime import Scheduling
+from clm_ros.realtime import NOT_APPLIED, Scheduling
 from clm_ros.track_views import MonitoredSleepers, monitored_indices, window_markers
 
 NODE_NAME = "clm_track_node"
@@ -134,7 +134,7 @@ class TrackNode(LifecycleNode):
         self._stop = stop or StopSignals()
         #: SCHED_FIFO priority asked of clm_ros.node_main.run_node, which sets ``scheduling`` to the outcome
         self.realtime_priority = int(self.get_parameter("realtime_priority").value)
-        self.scheduling: Scheduling | None = None
+        self.scheduling: Scheduling = NOT_APPLIED
         #: None while the process should run; 2: the model could not be configured at start (clm_ros.node_main)
         self.exit_code: int | None = None
         self.model: OnlineTrackModel | None = None
@@ -652,7 +652,7 @@ class TrackNode(LifecycleNode):
             "wheel_load_publishers_matched": self._matched_publishers,
             "answer_readers": max(self._peers[1], 0),
             "wheel_loads_reliability": self._reliability or "none",
-            "scheduling": self.scheduling.text if self.scheduling is not None else "normal (not set by run_node)",
+            "scheduling": self.scheduling.text,
             "sim_time_s": f"{model.time_ns / NS:.6f}" if model is not None and model.time_ns is not None else "nan",
         }
         name = f"{self.get_fully_qualified_name()}: track-soil model"  # the namespace tells a fleet's pairs apart

@@ -87,7 +87,7 @@ from clm_ros.bag_tools import take_raw
 from clm_ros.diagnostics import publish_status
 from clm_ros.node_main import freeze_heap, run_node
 from clm_ros.parameters import declare_settings
-from clm_ros.realtime import Scheduling
+from clm_ros.realtime import NOT_APPLIED, Scheduling
 
 NODE_NAME = "clm_vehicle_node"
 
@@ -173,7 +173,7 @@ class VehicleNode(LifecycleNode):
         declare_settings(self, ("autostart", "realtime_priority"), read_only=True)
         #: SCHED_FIFO priority asked of clm_ros.node_main.run_node, which sets ``scheduling`` to the outcome
         self.realtime_priority = int(self.p("realtime_priority"))
-        self.scheduling: Scheduling | None = None
+        self.scheduling: Scheduling = NOT_APPLIED
         #: None while the process should run; a number ends it with that exit code (clm_ros.node_main)
         self.exit_code: int | None = None
         self._template: StreamingVehicle | None = None
@@ -640,7 +640,7 @@ class VehicleNode(LifecycleNode):
             "malformed": life.malformed,
             "late_publishes": life.late,
             "publish_failed": life.publish_failed,
-            "scheduling": self.scheduling.text if self.scheduling is not None else "normal (not set by run_node)",
+            "scheduling": self.scheduling.text,
         }
         if final:
             values["final_train"] = final
