@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from clm_core.calibration.channels import ChannelMap, ChannelSpec, load_channel_map, parse_channel_map
     from clm_core.calibration.errors import BagError, CalibrationError
     from clm_core.calibration.impact import SoilFit, fit_impact
-    from clm_core.calibration.lsq import FitStats, ParameterEstimate
+    from clm_core.calibration.lsq import FitResult, FitStats, ParameterEstimate
     from clm_core.calibration.options import CalibrationOptions
     from clm_core.calibration.passby import fit_passby
     from clm_core.calibration.receptance import TrackFit, fit_receptance
@@ -50,6 +50,7 @@ _LAZY = {
     "CalibrationResult": "api",
     "ChannelMap": "channels",
     "ChannelSpec": "channels",
+    "FitResult": "lsq",
     "FitStats": "lsq",
     "ParameterEstimate": "lsq",
     "Recording": "signals",
@@ -83,6 +84,7 @@ __all__ = [
     "CalibrationResult",
     "ChannelMap",
     "ChannelSpec",
+    "FitResult",
     "FitStats",
     "ParameterEstimate",
     "Recording",

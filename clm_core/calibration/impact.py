@@ -67,7 +67,7 @@ from numpy.typing import NDArray
 
 from clm_core.arrays import Array, CArray
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import FitControls, FitStats, ParameterEstimate, Sandwich, fit_constrained
+from clm_core.calibration.lsq import FitControls, FitResult, FitStats, ParameterEstimate, Sandwich, fit_constrained
 from clm_core.calibration.residuals import (
     WhitenessCheck,
     channel_noise_power,
@@ -102,8 +102,8 @@ _FREE: Mapping[str, tuple[str, ...]] = {
 
 
 @dataclass(frozen=True)
-class SoilFit:
-    """Result of a soil fit to an impact test.
+class SoilFit(FitResult):
+    """Result of a soil fit to an impact test: :class:`~clm_core.calibration.lsq.FitResult` and the following.
 
     Attributes
     ----------
@@ -111,31 +111,13 @@ class SoilFit:
         Fitted foundation model.
     soil : SoilParams
         Fitted parameters (an admissible, stable set).
-    parameters : tuple of ParameterEstimate
-        Values, initial values, 95 % intervals, identifiability.
-    stats : FitStats
-        Residual and Jacobian statistics.
-    norm : str
-        Error norm used (see module docstring).
-    band : tuple of float
-        (fmin, fmax) [Hz] of the fitted lines.
     n_areas : int
         Areas in the model chain.
-    channels_used : tuple of str
-        Channels in the fit.
     H_model : (n_f, n_ch) complex array
         Fitted model receptances at the data's complex frequencies, every channel [m/N].
-    misfit : float
-        Relative misfit in the fit's norm, ||W (H_model - H)|| / ||W H||, over
-        the channels used and the band [-] (:func:`~clm_core.calibration.residuals.misfit`).
     misfit_loaded : float
-        The same for the loaded area alone (comparable across models) [-].
-    first_estimate : mapping
-        Starting values {name: value}.
-    first_estimate_method : str
-        How the starting values were found.
-    warnings : tuple of str
-        Identifiability, constraints, fallbacks, residuals that are not noise.
+        :attr:`misfit` for the loaded area alone (comparable across models) [-]
+        (:func:`~clm_core.calibration.residuals.misfit`).
     first_estimate_parameters : tuple of ParameterEstimate
         The first estimate with its own 95 % intervals (noise-weighted sums,
         :mod:`clm_core.calibration.sums`); () when not computed.
@@ -149,18 +131,9 @@ class SoilFit:
 
     model: str
     soil: SoilParams
-    parameters: tuple[ParameterEstimate, ...]
-    stats: FitStats
-    norm: str
-    band: tuple[float, float]
     n_areas: int
-    channels_used: tuple[str, ...]
     H_model: CArray
-    misfit: float
     misfit_loaded: float
-    first_estimate: Mapping[str, float]
-    first_estimate_method: str
-    warnings: tuple[str, ...]
     first_estimate_parameters: tuple[ParameterEstimate, ...] = ()
     chain_selection: str = "fixed"
     chain_trials: tuple[tuple[int, float], ...] = ()

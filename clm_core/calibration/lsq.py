@@ -53,7 +53,7 @@ reported as not identifiable from the data.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -172,6 +172,51 @@ class FitStats:
     status: str
     interval: str = "noise"
     inflation: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What every calibration fit gives: the estimates, their statistics and the fit's settings.
+
+    The base of :class:`~clm_core.calibration.impact.SoilFit` (impact test)
+    and :class:`~clm_core.calibration.receptance.TrackFit` (receptance and
+    pass-by tests), which add the fitted set and the model's response.
+
+    Attributes
+    ----------
+    parameters : tuple of ParameterEstimate
+        Fitted values [SI], initial values, 95 % intervals, identifiability.
+    stats : FitStats
+        Residual and Jacobian statistics.
+    norm : str
+        Error norm used (``weighted``, ``relative``, ..., see
+        :mod:`clm_core.calibration.residuals`).
+    band : tuple of float
+        (fmin, fmax) [Hz] of the fitted lines; (0, fs/2) for a pass-by fit
+        (time domain).
+    channels_used : tuple of str
+        Channels in the fit.
+    misfit : float
+        Relative misfit in the fit's norm, ||W (model - data)|| / ||W data||,
+        over the channels used and the band [-] (pass-by: W = 1 / noise of
+        each channel).
+    first_estimate : mapping
+        Starting values {name: value} [SI].
+    first_estimate_method : str
+        How the starting values were found.
+    warnings : tuple of str
+        Identifiability, constraints, fallbacks, residuals that are not noise.
+    """
+
+    parameters: tuple[ParameterEstimate, ...]
+    stats: FitStats
+    norm: str
+    band: tuple[float, float]
+    channels_used: tuple[str, ...]
+    misfit: float
+    first_estimate: Mapping[str, float]
+    first_estimate_method: str
+    warnings: tuple[str, ...]
 
 
 INTERVALS: tuple[str, ...] = ("noise", "inflated", "hac")

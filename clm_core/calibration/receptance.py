@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from clm_core.arrays import Array, CArray
 from clm_core.calibration.errors import CalibrationError
-from clm_core.calibration.lsq import FitControls, FitStats, ParameterEstimate, fit_constrained
+from clm_core.calibration.lsq import FitControls, FitResult, fit_constrained
 from clm_core.calibration.models import track_response
 from clm_core.calibration.residuals import corr_factor, make_sandwich, misfit, norm_weights, stack_residual
 from clm_core.calibration.spectra import TransferData
@@ -40,47 +40,23 @@ DEFAULT_FIT: tuple[str, ...] = ("kp", "dp", "kb", "db")
 
 
 @dataclass(frozen=True)
-class TrackFit:
-    """Result of a track fit (receptance or pass-by).
+class TrackFit(FitResult):
+    """Result of a track fit (receptance or pass-by): :class:`~clm_core.calibration.lsq.FitResult` and the following.
 
     Attributes
     ----------
     params : ModelParams
         The full fitted parameter set (fixed parameters from the base set).
-    parameters : tuple of ParameterEstimate
-        The fitted parameters with intervals.
-    stats : FitStats
-    norm : str
-        Error norm used.
-    band : tuple of float
-        (fmin, fmax) [Hz] (receptance) or (0, fs/2) (pass-by).
     n_sleepers : int
-        Sleepers of the model track.
-    channels_used : tuple of str
+        Sleepers of the model track (0: pass-by, the simulator's window).
     model_response : array
         Receptance: (n_f, n_ch) complex model H at the data's s [m/N];
         pass-by: (n_t, n_ch) simulated responses [SI].
-    misfit : float
-        Relative misfit in the fit's norm, ||W (model - data)|| / ||W data|| [-]
-        (pass-by: W = 1 / noise of each channel).
-    first_estimate : mapping
-        Starting values.
-    first_estimate_method : str
-    warnings : tuple of str
     """
 
     params: ModelParams
-    parameters: tuple[ParameterEstimate, ...]
-    stats: FitStats
-    norm: str
-    band: tuple[float, float]
     n_sleepers: int
-    channels_used: tuple[str, ...]
     model_response: NDArray[np.generic]
-    misfit: float
-    first_estimate: Mapping[str, float]
-    first_estimate_method: str
-    warnings: tuple[str, ...]
 
 
 def free_parameters(base: ModelParams, fit: Sequence[str], soil: str) -> tuple[str, ...]:
