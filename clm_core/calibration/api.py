@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from clm_core.calibration.bagio import WheelLoadRecord, read_bag
 from clm_core.calibration.channels import ChannelMap, find_channel_map, load_channel_map
 from clm_core.calibration.errors import BagError, CalibrationError
 from clm_core.calibration.impact import SoilFit, fit_impact
-from clm_core.calibration.lsq import FitStats, ParameterEstimate
+from clm_core.calibration.lsq import FitControls, FitStats, ParameterEstimate
 from clm_core.calibration.models import track_response
 from clm_core.calibration.options import METHODS, CalibrationOptions
 from clm_core.calibration.passby import DEFAULT_PASSBY_FIT, fit_passby
@@ -333,6 +333,19 @@ def calibrate(
         if progress is not None:
             progress(stage, frac)
 
+    def reporting(controls: FitControls, stage: str, lo: float, hi: float) -> FitControls:
+        # `controls` reporting every model evaluation of a fit: `stage` from `lo` towards `hi` as the evaluations add
+        # up (capped: finite differences and chain-length trials add evaluations beyond the budget); a cancel raised
+        # by `progress` stops the fit there
+        n = 0
+
+        def tick() -> None:
+            nonlocal n
+            n += 1
+            report(stage, min(hi, lo + (hi - lo) * n / (controls.max_nfev + 10)))
+
+        return replace(controls, progress=tick)
+
     report("reading bag", 0.0)
     if not Path(bag_path).exists():
         raise BagError(f"bag {str(bag_path)!r} does not exist")
@@ -348,13 +361,7 @@ def calibrate(
     report("records checked", 0.15)
     if method == "passby":
         assert contents.loads is not None
-        n_calls = [0]
         controls = opts.controls(60)
-
-        def tick() -> None:
-            n_calls[0] += 1
-            report("fitting (time-domain simulations)", min(0.95, 0.2 + 0.75 * n_calls[0] / (controls.max_nfev + 10)))
-
         fit = fit_passby(
             rec,
             contents.loads,
@@ -364,8 +371,7 @@ def calibrate(
             opts.initial,
             opts.dt,
             opts.quiet_distance,
-            controls=controls,
-            progress=tick,
+            controls=reporting(controls, "fitting (time-domain simulations)", 0.2, 0.95),
         )
         warnings += fit.warnings
         report("done", 1.0)
@@ -377,6 +383,7 @@ def calibrate(
     report("transfer functions", 0.25)
     if method == "impact":
         first, _ = transfer_functions(rec, fmin, fmax, _no_exp(opts.window), opts.min_lines)
+        controls = opts.controls(200)
         main = fit_impact(
             data,
             opts.model,
@@ -384,7 +391,7 @@ def calibrate(
             opts.n_areas,
             opts.initial,
             first,
-            controls=opts.controls(200),
+            controls=reporting(controls, f"{opts.model} fit", 0.25, 0.6),
             interval=opts.interval,
             first=opts.first,
         )
@@ -393,14 +400,16 @@ def calibrate(
         comps: list[SoilFit] = []
         if opts.compare:
             for k, other in enumerate(m for m in ("clm", "lysmer", "winkler") if m != opts.model):
+                stage = f"comparison fit {other}"
                 try:
                     comps.append(
-                        fit_impact(data, other, opts.norm, opts.n_areas, None, first, controls=opts.controls(200),
+                        fit_impact(data, other, opts.norm, opts.n_areas, None, first,
+                                   controls=reporting(controls, stage, 0.6 + 0.1 * k, 0.7 + 0.1 * k),
                                    interval=opts.interval, first=opts.first)
                     )
                 except CalibrationError as exc:
-                    warnings.append(f"comparison fit {other}: {exc}")
-                report(f"comparison fit {other}", 0.7 + 0.1 * k)
+                    warnings.append(f"{stage}: {exc}")
+                report(stage, 0.7 + 0.1 * k)
         try:
             params = ModelParams(rail=base.rail, track=base.track, soil=main.soil, name="calibrated")
         except ParameterError as exc:  # pragma: no cover - a fitted soil is admissible by construction
@@ -410,6 +419,7 @@ def calibrate(
         return _result(method, bag_path, contents.storage, cmap, opts, main, opts.model, params, tuple(comps), data,
                        rec, None, tm, warnings, notes, t_start)
     # receptance
+    controls = opts.controls(100)
     tfit = fit_receptance(
         data,
         base,
@@ -418,7 +428,7 @@ def calibrate(
         opts.norm,
         opts.n_sleepers,
         opts.initial,
-        controls=opts.controls(100),
+        controls=reporting(controls, "track fit", 0.25, 0.9),
     )
     warnings += tfit.warnings
     report("track fit", 0.9)

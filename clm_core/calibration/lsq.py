@@ -68,6 +68,8 @@ from clm_core.params import PARAMETER_DOCS
 Residual = Callable[[Array], tuple[Array, Array | None]]
 #: J -> (J^T Sigma J, trace Sigma): the residual covariance of the noise, applied to a Jacobian.
 Sandwich = Callable[[Array], tuple[Array, float]]
+#: Called with no argument after every residual evaluation (it may raise to stop the fit).
+Tick = Callable[[], None]
 
 
 @dataclass(frozen=True)
@@ -323,7 +325,7 @@ def covariance(
 
 @dataclass(frozen=True)
 class FitControls:
-    """Budget of the optimiser and identifiability rules of a bounded fit (module docstring).
+    """Budget of the optimiser, identifiability rules and progress hook of a bounded fit (module docstring).
 
     The defaults are the impact fit's; the receptance and pass-by fits take 100
     and 60 evaluations (:meth:`clm_core.calibration.options.CalibrationOptions.controls`
@@ -338,6 +340,10 @@ class FitControls:
     cond_max : float
         Largest condition number of the scaled Jacobian before the weakest
         direction is reported.
+    progress : callable or None
+        Called with no argument after every evaluation of the residual
+        (finite differences included); an exception it raises stops the fit
+        and propagates (how a calibration is canceled).
 
     Raises
     ------
@@ -348,6 +354,7 @@ class FitControls:
     max_nfev: int = 200
     ident_rel: float = 0.25
     cond_max: float = 1e6
+    progress: Tick | None = None
 
     def __post_init__(self) -> None:
         if not 0 < self.ident_rel:
@@ -426,6 +433,8 @@ def fit_bounded(
     from scipy.stats import t as student_t
 
     ctl = controls or FitControls()
+    if ctl.progress is not None:
+        residual = _reporting(residual, ctl.progress)
     p0 = np.asarray(p0, dtype=float)
     n = p0.size
     Ainv = np.linalg.inv(A)
@@ -554,6 +563,17 @@ def fit_bounded(
         inflation=infl,
     )
     return p, tuple(est), stats, warnings
+
+
+def _reporting(residual: Residual, progress: Tick) -> Residual:
+    """``residual`` that calls ``progress()`` after each evaluation."""
+
+    def evaluate(p: Array) -> tuple[Array, Array | None]:
+        out = residual(p)
+        progress()
+        return out
+
+    return evaluate
 
 
 def _fd_jacobian(residual: Residual, p: Array, r: Array, step: float) -> Array:

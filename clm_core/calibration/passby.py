@@ -142,7 +142,6 @@ def fit_passby(
     quiet_distance: float = 6.0,
     *,
     controls: FitControls | None = None,
-    progress: Any = None,
 ) -> TrackFit:
     """Output-error fit of track (and soil) parameters to a pass-by record.
 
@@ -168,9 +167,8 @@ def fit_passby(
         estimate and offset removal).
     controls : FitControls, optional
         Budget and identifiability rules (default: :class:`~clm_core.calibration.lsq.FitControls`
-        with 60 evaluations, each a time-domain simulation).
-    progress : callable, optional
-        Called with no argument after each simulation.
+        with 60 evaluations, each a time-domain simulation; its ``progress``
+        is called after each simulation of the fit).
 
     Returns
     -------
@@ -221,10 +219,7 @@ def fit_passby(
 
     def sim(p: Array) -> Array:
         prm = start.override(**dict(zip(names, p.tolist())))
-        out = simulate_channels(prm, loads, rec.channels, t, dt)
-        if progress is not None:
-            progress()
-        return out
+        return simulate_channels(prm, loads, rec.channels, t, dt)
 
     def residual(p: Array) -> tuple[Array, None]:
         Ys = sim(p)

@@ -207,6 +207,32 @@ def test_receptance_joint_soil_fit_is_admissible_and_flags_weak_parameters(recep
     assert any(not p.identifiable for p in res.parameters)
 
 
+def test_every_model_evaluation_reports_and_a_raising_report_stops_the_fit(receptance_bag: Path) -> None:
+    """Progress comes after each model evaluation of the fit (finite differences too), never decreasing, and an
+    exception raised by the callback (the calibration node's cancel) stops the fit at that evaluation."""
+    seen: list[tuple[str, float]] = []
+    res = calibrate(receptance_bag, "receptance", {"fit": ["kp", "kb"]}, progress=lambda s, f: seen.append((s, f)))
+    fit = [f for s, f in seen if s == "track fit"]
+    # least_squares' evaluations (nfev) plus its 2-point Jacobians (2 per iteration), the last one at 0.9
+    assert len(fit) > res.stats.nfev >= 2
+    assert all(0.25 < f <= 0.9 for f in fit) and fit[-1] == 0.9
+    assert [f for _, f in seen] == sorted(f for _, f in seen)
+
+    class Stop(Exception):
+        pass
+
+    reports: list[str] = []
+
+    def stop_at_the_third_evaluation(stage: str, frac: float) -> None:
+        reports.append(stage)
+        if reports.count("track fit") == 3:
+            raise Stop
+
+    with pytest.raises(Stop):
+        calibrate(receptance_bag, "receptance", {"fit": ["kp", "kb"]}, progress=stop_at_the_third_evaluation)
+    assert reports[-1] == "track fit" and reports.count("track fit") == 3 and "done" not in reports
+
+
 def test_options_refuse_unknown_keys_and_bad_values() -> None:
     from clm_core.calibration import CalibrationError
 

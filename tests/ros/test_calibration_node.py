@@ -6,8 +6,9 @@
   parameter file that loads (and that the track node's model builder takes),
   metrics; ``/diagnostics`` show the running goal, then the counts and the
   last fit's misfit and duration.
-- Cancel: a goal canceled in the middle of a receptance fit ends CANCELED at
-  the next progress report (no fitted values, at most one further stage); a
+- Cancel: a goal canceled in the middle of a long receptance fit ends
+  CANCELED at its next progress report, the next model evaluation (no fitted
+  values; the result names the stage and fraction of the last feedback); a
   queued goal canceled ends CANCELED without starting; with ``max_queued``
   full a further goal is rejected and a service call answered ``busy``; the
   service shares the queue and the code path (same parameter file).
@@ -68,6 +69,13 @@ TIMEOUT = 20.0  # discovery / service readiness [s]
 FIT_TIMEOUT = 90.0  # a fit on a loaded 2-core machine [s]
 SOIL_KEYS = ["soil.mf", "soil.kf", "soil.df", "soil.kc", "soil.dc"]
 TRACK_FIT = ["kp", "dp", "kb", "db", "ms"]
+#: A goal whose fit runs for tens of seconds (20 s on a quiet machine: a joint track and soil fit on 121 sleepers,
+#: started far from the truth) with a progress report at each model evaluation (about every 40 ms): the goal that is
+#: queued behind, canceled or interrupted, still running whatever the load when the test gets to it.
+LONG_FIT: dict[str, Any] = dict(
+    method="receptance", fit=[*TRACK_FIT, "mf", "kf", "df", "kc", "dc"], soil="joint", n_sleepers=121,
+    initial_names=["kp", "kb", "db"], initial_values=[4.8e8, 1.41e7, 2.16e5],
+)
 
 
 def _truth(bag: Path = IMPACT_BAG) -> dict[str, float]:
@@ -290,8 +298,9 @@ def test_cancel_queue_reject_and_service(ros_python, client_factory) -> None:  #
     _start_calibration_node(ros_python, "-p", "max_queued:=1")
     c = client_factory()
     c.ready()
-    # A: a receptance fit (about 1 s without a progress report while the track is fitted)
-    a = c.send(RECEPTANCE_BAG, method="receptance", fit=TRACK_FIT)
+    # A: a long fit (LONG_FIT), canceled below; before this, a fit of about 1 s could end while the test waited for
+    # B's status under load, and C was then accepted (seen once in CI)
+    a = c.send(RECEPTANCE_BAG, **LONG_FIT)
     assert a.handle.accepted
     # B waits its turn (ACCEPTED, feedback 'queued'); C finds the queue full: rejected; a service call: busy
     b = c.send(IMPACT_BAG, method="impact")
@@ -313,22 +322,23 @@ def test_cancel_queue_reject_and_service(ros_python, client_factory) -> None:  #
     assert rb.status == GoalStatus.STATUS_CANCELED and rb.result.message == "canceled while queued (never started)"
     assert b.stages() == ["queued"]
     assert not a.result.done()
-    # cancel A in the middle of its fit: CANCELED at the next progress report
-    c.wait_for(lambda: "transfer functions" in a.stages(), "A in the track fit", FIT_TIMEOUT)
-    n_before = len(a.feedback)
+    # cancel A in the middle of its fit: CANCELED at its next progress report (the next model evaluation)
+    c.wait_for(lambda: "track fit" in a.stages(), "A in the track fit", FIT_TIMEOUT)
     t_cancel = time.monotonic()
     resp = c.cancel(a)
     assert len(resp.goals_canceling) == 1
-    t_accepted = time.monotonic()
     ra = c.result(a)
     latency = time.monotonic() - t_cancel
-    print(f"cancel latency (cancel sent -> CANCELED result received): {latency:.3f} s")
+    print(f"cancel latency (cancel sent -> CANCELED result received): {latency:.3f} s, "
+          f"{len(a.feedback)} feedback messages")
     assert ra.status == GoalStatus.STATUS_CANCELED, ra.result.message
-    assert ra.result.message.startswith("canceled during '") and not ra.result.success
+    assert ra.result.message.startswith("canceled during 'track fit' (") and not ra.result.success
     assert list(ra.result.names) == [] and ra.result.parameters_yaml == ""  # the fit did not complete
-    late = [f for t, f in a.feedback if t > t_accepted]
-    assert len(a.feedback) - n_before <= 1 and len(late) <= 1, a.stages()  # stopped at the next report
-    assert max(a.fractions()) < 1.0
+    # it stopped where its feedback stopped: the stage and fraction the result names are those of the last feedback
+    # (which may come in after the result: another reader)
+    c.wait_for(lambda: f"'{a.feedback[-1][1].stage}' ({100 * a.feedback[-1][1].fraction:.0f} %)"
+               in ra.result.message, "A's last feedback, as in its result")
+    assert max(a.fractions()) < 0.9  # the track fit's share ends at 0.9: it did not run to its end
     # the node serves on: a goal and a service call (same queue, same code path, same parameter file)
     d = c.send(IMPACT_BAG, compare=False)
     srv = c.call_service(IMPACT_BAG, "impact", "compare: false")
@@ -466,8 +476,8 @@ def test_signals_exit_cleanly(ros_python, client_factory) -> None:  # type: igno
     node = _start_calibration_node(ros_python)
     c = client_factory()
     c.ready()
-    g = c.send(RECEPTANCE_BAG, method="receptance", fit=TRACK_FIT)
-    c.wait_for(lambda: "transfer functions" in g.stages(), "the track fit", FIT_TIMEOUT)
+    g = c.send(RECEPTANCE_BAG, **LONG_FIT)
+    c.wait_for(lambda: "track fit" in g.stages(), "the track fit", FIT_TIMEOUT)
     t0 = time.monotonic()
     node.send_signal(signal.SIGTERM)
     r = c.result(g, allow_exit=True)

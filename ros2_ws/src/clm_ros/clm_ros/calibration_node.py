@@ -9,10 +9,11 @@ with the default node name):
   chain length or automatic, interval method, fitted names, starting values,
   ...; ``options_yaml`` for the rare rest) and optionally a node to push the
   fitted parameters to. Feedback: ``stage``, ``fraction`` (0 to 1, never
-  decreasing), ``message``, ``elapsed``, at every progress report of
+  decreasing), ``message``, ``elapsed``, at every stage of
   :func:`clm_core.calibration.calibrate` (impact test: reading bag, records
-  checked, transfer functions, CLM fit, comparison fits, done) and at the
-  push. Result: ``success``, a one-line ``message``, the fitted parameters
+  checked, transfer functions, CLM fit, comparison fits, done), within a fit
+  at most every :data:`FEEDBACK_PERIOD` s as its model evaluations add up,
+  and at the push. Result: ``success``, a one-line ``message``, the fitted parameters
   (``names``, ``units``, ``values``, ``std_error``, ``ci95_low``,
   ``ci95_high``, ``identifiable``, ``at_bound``), fit quality (``misfit``,
   ``rms_residual``, ``n_areas``, ``fit_duration``, ``warnings``), the
@@ -36,9 +37,10 @@ arriving when the queue is full is rejected (logged, counted in
 false`` and a message starting with ``busy``. ``max_queued = 0``: no queue,
 reject while busy.
 
-**Cancel.** A running fit stops at its next progress report (the longest
-stretch without one is the main fit, about 0.2-1 s for the shipped impact
-bag) and the goal ends CANCELED; a queued goal ends CANCELED within 0.05 s. A
+**Cancel.** A running fit stops at its next progress report, at the latest
+after the model evaluation under way (each evaluation of a fit reports; the
+longest stretch without a report on the shipped bags is 0.2-0.6 s, between
+stages), and the goal ends CANCELED; a queued goal ends CANCELED within 0.05 s. A
 cancel arriving during the push does not interrupt it (one atomic request,
 bounded by ``push_timeout``): the goal ends with the push's outcome.
 
@@ -90,6 +92,7 @@ fmax: 140.0}"``.
 
 from __future__ import annotations
 
+import math
 import queue
 import sys
 import threading
@@ -151,6 +154,9 @@ FLUSH_S = 0.2
 QUEUE_POLL_S = 0.05
 #: Share of the feedback fraction given to the fit when a push follows.
 FIT_SHARE_WITH_PUSH = 0.9
+#: Least time between two feedback messages of one stage [s] (a new stage is sent at once; a cancel is checked at
+#: every progress report, sent or not).
+FEEDBACK_PERIOD = 0.1
 
 DEFAULT_METHOD: Setting[str] = Setting("default_method", str, "impact", "-",
                                        "method used when a goal leaves 'method' empty", choices=METHODS)
@@ -436,9 +442,15 @@ class CalibrationNode(Node):
         self.get_logger().info(f"{job.label}: calibrating: {req.method} on {req.bag!r}")
         self.publish_diagnostics()
 
+        sent = -math.inf
+
         def progress(stage: str, frac: float) -> None:
+            nonlocal sent
             self._check_stop(job)
-            self._feedback(job, stage, share * frac)
+            now = time.monotonic()
+            if stage != job.stage or frac >= 1.0 or now - sent >= FEEDBACK_PERIOD:
+                sent = now
+                self._feedback(job, stage, share * frac)
 
         try:
             result = calibrate(path, req.method, req.options, progress=progress, allow_partial=req.allow_partial)
