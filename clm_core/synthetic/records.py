@@ -21,6 +21,7 @@ The records are written to bags by :mod:`clm_core.synthetic.writer`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Literal
@@ -107,6 +108,38 @@ def hammer_pulse(
     raise CalibrationError(f"pulse = {kind!r}: must be 'half-sine' or 'eq1'")
 
 
+def _finite(what: str, name: str, value: float, unit: str, low: float = 0.0, strict: bool = True) -> float:
+    """``value`` as a float if finite and above ``low`` (or at it, ``strict=False``); else CalibrationError."""
+    v = float(value)
+    if not (math.isfinite(v) and (v > low if strict else v >= low)):
+        rule = f"finite and {'>' if strict else '>='} {low:g}"
+        raise CalibrationError(f"{what}: {name} = {value!r} {unit}: must be {rule}".replace("  ", " "))
+    return v
+
+
+def _check_hammer_test(fs: float, duration: float, hit_times: Sequence[float], pulse_duration: float,
+                       amplitude: float, oversample: int, what: str) -> None:
+    """The acquisition settings of a hammer test: rate, length, hits inside the record, a resolved pulse."""
+    fs = _finite(what, "fs", fs, "Hz")
+    duration = _finite(what, "duration", duration, "s")
+    if isinstance(oversample, bool) or int(oversample) != oversample or oversample < 1:
+        raise CalibrationError(f"{what}: oversample = {oversample!r}: must be an integer >= 1")
+    if duration * fs < 2:
+        raise CalibrationError(f"{what}: duration = {duration:g} s at fs = {fs:g} Hz: fewer than 2 samples")
+    td = _finite(what, "pulse_duration", pulse_duration, "s")
+    dt = 1.0 / (fs * oversample)
+    if td < 4 * dt:
+        raise CalibrationError(f"{what}: pulse_duration = {td:g} s: shorter than 4 simulation steps of "
+                               f"1 / (fs oversample) = {dt:g} s; raise oversample")
+    _finite(what, "amplitude", amplitude, "N")
+    if len(hit_times) == 0:
+        raise CalibrationError(f"{what}: hit_times is empty: at least one hit")
+    for th in hit_times:
+        if not (math.isfinite(th) and 0.0 <= th and th + td <= duration):
+            raise CalibrationError(f"{what}: hit at {th!r} s: the pulse (onset to onset + pulse_duration) must lie "
+                                   f"in the record [0, {duration:g}] s")
+
+
 def _spec(topic: str, quantity: str, units: str, location: str, index: int, name: str | None = None,
           field: str | None = None) -> ChannelSpec:
     return ChannelSpec(
@@ -189,7 +222,16 @@ def _hammer_test(
         Force [N], then the sensors (SI units), after the anti-alias filter.
     settings : dict
         The acquisition settings for ``truth.yaml`` (``fs_hz`` ... ``simulation``).
+
+    Raises
+    ------
+    CalibrationError
+        A rate, length, pulse or amplitude that is not finite and positive,
+        ``oversample`` not an integer >= 1, a hit whose pulse is not inside
+        the record, a pulse shorter than 4 simulation steps, a diverged
+        simulation.
     """
+    _check_hammer_test(fs, duration, hit_times, pulse_duration, amplitude, oversample, what)
     dt = 1.0 / (fs * oversample)
     n_t = int(round(duration * fs)) * oversample
     t = np.arange(n_t, dtype=np.float64) * dt
@@ -387,10 +429,28 @@ def simulate_passby(
         Output (recording) rate [Hz].
     dt : float
         Simulation step [s] (an integer fraction of 1 / fs).
+
+    Raises
+    ------
+    CalibrationError
+        Unknown fields, no sleeper or wheel, a speed, rate, step or load that
+        is not finite and positive, a negative run-in or axle offset, a
+        ``dt`` that does not divide 1 / fs.
     """
     params = params or load_model("mevergnies", "mevergnies", "clm")
+    what = "pass-by simulation"
     if any(f not in _FIELD_LOCATION for f in fields):
         raise CalibrationError(f"fields {list(fields)}: each must be one of {', '.join(_FIELD_LOCATION)}")
+    if len(sleepers) == 0 or len(axle_offsets) == 0:
+        raise CalibrationError(f"{what}: sleepers {list(sleepers)}, axle_offsets {list(axle_offsets)}: "
+                               "at least one of each")
+    speed, fs, dt = _finite(what, "speed", speed, "m/s"), _finite(what, "fs", fs, "Hz"), _finite(what, "dt", dt, "s")
+    _finite(what, "static_load", static_load, "N")
+    _finite(what, "dynamic_amplitude", dynamic_amplitude, "", strict=False)
+    _finite(what, "dynamic_frequency", dynamic_frequency, "Hz", strict=False)
+    _finite(what, "run_in", run_in, "m", strict=False)
+    for off in axle_offsets:
+        _finite(what, "axle offset", off, "m", strict=False)
     every = int(round(1.0 / (fs * dt)))
     if abs(every * dt * fs - 1.0) > 1e-9:
         raise CalibrationError(f"dt = {dt:g} s: must divide the output interval 1/fs = {1 / fs:g} s")
