@@ -42,11 +42,11 @@ def positive(name: str, value: Any, error: type[ClmError] = ParameterError, unit
     return v
 
 
-def nonnegative(name: str, value: Any) -> float:
-    """``value`` as a finite float >= 0."""
-    v = finite(name, value)
+def nonnegative(name: str, value: Any, error: type[ClmError] = ParameterError, unit: str = "") -> float:
+    """``value`` as a finite float >= 0 (``error``, ``unit``: as in :func:`positive`)."""
+    v = finite(name, value, error)
     if v < 0.0:
-        raise ParameterError(f"{name} = {v:g}: must be >= 0")
+        raise error(f"{name} = {v:g}{' ' + unit if unit else ''}: must be >= 0")
     return v
 
 

@@ -35,6 +35,7 @@ from clm_core.calibration.channels import ChannelSpec, unit_factor
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.passby import simulate_channels
 from clm_core.calibration.signals import Signal
+from clm_core.checks import finite, nonnegative, positive
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
 from clm_core.params import ModelParams, SoilParams, load_model, load_soil
@@ -108,30 +109,21 @@ def hammer_pulse(
     raise CalibrationError(f"pulse = {kind!r}: must be 'half-sine' or 'eq1'")
 
 
-def _finite(what: str, name: str, value: float, unit: str, low: float = 0.0, strict: bool = True) -> float:
-    """``value`` as a float if finite and above ``low`` (or at it, ``strict=False``); else CalibrationError."""
-    v = float(value)
-    if not (math.isfinite(v) and (v > low if strict else v >= low)):
-        rule = f"finite and {'>' if strict else '>='} {low:g}"
-        raise CalibrationError(f"{what}: {name} = {value!r} {unit}: must be {rule}".replace("  ", " "))
-    return v
-
-
 def _check_hammer_test(fs: float, duration: float, hit_times: Sequence[float], pulse_duration: float,
                        amplitude: float, oversample: int, what: str) -> None:
     """The acquisition settings of a hammer test: rate, length, hits inside the record, a resolved pulse."""
-    fs = _finite(what, "fs", fs, "Hz")
-    duration = _finite(what, "duration", duration, "s")
+    fs = positive(f"{what}: fs", fs, CalibrationError, "Hz")
+    duration = positive(f"{what}: duration", duration, CalibrationError, "s")
     if isinstance(oversample, bool) or int(oversample) != oversample or oversample < 1:
         raise CalibrationError(f"{what}: oversample = {oversample!r}: must be an integer >= 1")
     if duration * fs < 2:
         raise CalibrationError(f"{what}: duration = {duration:g} s at fs = {fs:g} Hz: fewer than 2 samples")
-    td = _finite(what, "pulse_duration", pulse_duration, "s")
+    td = positive(f"{what}: pulse_duration", pulse_duration, CalibrationError, "s")
     dt = 1.0 / (fs * oversample)
     if td < 4 * dt:
         raise CalibrationError(f"{what}: pulse_duration = {td:g} s: shorter than 4 simulation steps of "
                                f"1 / (fs oversample) = {dt:g} s; raise oversample")
-    _finite(what, "amplitude", amplitude, "N")
+    positive(f"{what}: amplitude", amplitude, CalibrationError, "N")
     if len(hit_times) == 0:
         raise CalibrationError(f"{what}: hit_times is empty: at least one hit")
     for th in hit_times:
@@ -444,13 +436,15 @@ def simulate_passby(
     if len(sleepers) == 0 or len(axle_offsets) == 0:
         raise CalibrationError(f"{what}: sleepers {list(sleepers)}, axle_offsets {list(axle_offsets)}: "
                                "at least one of each")
-    speed, fs, dt = _finite(what, "speed", speed, "m/s"), _finite(what, "fs", fs, "Hz"), _finite(what, "dt", dt, "s")
-    _finite(what, "static_load", static_load, "N")
-    _finite(what, "dynamic_amplitude", dynamic_amplitude, "", strict=False)
-    _finite(what, "dynamic_frequency", dynamic_frequency, "Hz", strict=False)
-    _finite(what, "run_in", run_in, "m", strict=False)
+    speed = positive(f"{what}: speed", speed, CalibrationError, "m/s")
+    fs = positive(f"{what}: fs", fs, CalibrationError, "Hz")
+    dt = positive(f"{what}: dt", dt, CalibrationError, "s")
+    positive(f"{what}: static_load", static_load, CalibrationError, "N")
+    finite(f"{what}: dynamic_amplitude", dynamic_amplitude, CalibrationError)
+    nonnegative(f"{what}: dynamic_frequency", dynamic_frequency, CalibrationError, "Hz")
+    nonnegative(f"{what}: run_in", run_in, CalibrationError, "m")
     for off in axle_offsets:
-        _finite(what, "axle offset", off, "m", strict=False)
+        nonnegative(f"{what}: axle offset", off, CalibrationError, "m")
     every = int(round(1.0 / (fs * dt)))
     if abs(every * dt * fs - 1.0) > 1e-9:
         raise CalibrationError(f"dt = {dt:g} s: must divide the output interval 1/fs = {1 / fs:g} s")
