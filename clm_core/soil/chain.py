@@ -29,6 +29,7 @@ n grows (Eq. 17-18; the end areas make it approximate for finite n).
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal, TypeAlias, overload
@@ -39,7 +40,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import lapack
 
 from clm_core.arrays import Array, CArray
-from clm_core.checks import chain_min_eigenvalue, finite, odd_count
+from clm_core.checks import chain_min_eigenvalue, finite, odd_count, positive
 from clm_core.errors import ParameterError
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
@@ -82,8 +83,27 @@ def laplace(f: ArrayLike, sigma: float = 0.0) -> CArray:
 
     ``sigma`` [1/s] is the decay rate of an exponential window exp(-sigma t)
     applied to force and response (0 for a harmonic response).
+
+    Raises
+    ------
+    ParameterError
+        A non-finite ``sigma``.
     """
+    sigma = finite("sigma", sigma)
     return np.asarray(sigma + 2j * np.pi * np.asarray(f, dtype=float), dtype=np.complex128)
+
+
+def _loaded_area(loaded: int | None, n_areas: int) -> int:
+    """The loaded area's index: ``loaded``, or the centre one if None."""
+    if loaded is None:
+        return n_areas // 2
+    try:
+        c = operator.index(loaded)
+    except TypeError:
+        raise ParameterError(f"loaded = {loaded!r}: must be an integer area index 0..{n_areas - 1}") from None
+    if not 0 <= c < n_areas:
+        raise ParameterError(f"loaded = {c}: must be an area index 0..{n_areas - 1}")
+    return c
 
 
 def _neighbours(n_areas: int) -> Array:
@@ -174,17 +194,20 @@ def chain_response(
     Raises
     ------
     ParameterError
-        Bad ``n_areas`` or ``loaded``, or D(s) singular at some s (e.g. an
+        Bad ``n_areas`` or ``loaded``, an empty, not 1-D or non-finite ``s``, or D(s) singular at some s (e.g. an
         undamped resonance or a zero stiffness at s = 0).
     """
     mf, kf, df, kc, dc = chain_values(soil)
     n = odd_count("n_areas", n_areas)
-    c = n // 2 if loaded is None else int(loaded)
-    if not 0 <= c < n:
-        raise ParameterError(f"loaded = {loaded}: must be an area index 0..{n - 1}")
-    s = np.atleast_1d(np.asarray(s, dtype=np.complex128))
-    if s.ndim != 1:
-        raise ParameterError(f"s: must be 1-D, got shape {s.shape}")
+    c = _loaded_area(loaded, n)
+    try:
+        s = np.atleast_1d(np.asarray(s, dtype=np.complex128))
+    except (TypeError, ValueError):
+        raise ParameterError(f"s = {s!r}: must be complex numbers") from None
+    if s.ndim != 1 or s.size == 0:
+        raise ParameterError(f"s: must be a non-empty 1-D array, got shape {s.shape}")
+    if not np.all(np.isfinite(s)):
+        raise ParameterError(f"s = {s[~np.isfinite(s)][0]}: must be finite (no NaN or infinity)")
     nb = _neighbours(n)
     X = np.empty((s.size, n), dtype=np.complex128)
     dX = np.empty((5, s.size, n), dtype=np.complex128) if jacobian else None
@@ -246,8 +269,7 @@ def chain_frequency_response(soil: ChainSoil, n_areas: int, f: ArrayLike, *, loa
 
 def _sum_signs(n_areas: int, loaded: int | None) -> tuple[Array, Array]:
     """Weights of the total and alternating sums, (+1)_j and (-1)^j with j from the loaded area."""
-    c = n_areas // 2 if loaded is None else int(loaded)
-    j = np.arange(n_areas) - c
+    j = np.arange(n_areas) - _loaded_area(loaded, n_areas)
     return np.ones(n_areas), np.where(j % 2 == 0, 1.0, -1.0)
 
 
@@ -292,16 +314,33 @@ def chain_sums(frequency: ArrayLike, X: ArrayLike, force: ArrayLike = 1.0, *, lo
     Returns
     -------
     ChainSums
+
+    Raises
+    ------
+    ParameterError
+        ``X`` not a non-empty complex array of shape (n_f, 2n + 1) matching
+        ``frequency``, ``force`` neither a scalar nor of shape (n_f,), or
+        ``loaded`` not an area index.
     """
-    Xa = np.asarray(X)
+    try:
+        Xa = np.asarray(X, dtype=np.complex128)
+        fa = np.asarray(frequency, dtype=float)
+        F = np.asarray(force, dtype=np.complex128)
+    except (TypeError, ValueError):
+        raise ParameterError("chain_sums: frequency, X and force must be numbers") from None
+    if Xa.ndim != 2 or Xa.shape[0] == 0:
+        raise ParameterError(f"X: shape {Xa.shape}: must be (n_f, 2n + 1) with n_f >= 1")
     n = Xa.shape[1]
     if n % 2 == 0:
         raise ParameterError(f"X has {n} areas: need 2n + 1 with the loaded area at the centre")
+    if fa.shape != (Xa.shape[0],):
+        raise ParameterError(f"frequency: shape {fa.shape}: must be ({Xa.shape[0]},), one per row of X")
+    if F.ndim > 1 or (F.ndim == 1 and F.shape != fa.shape):
+        raise ParameterError(f"force: shape {F.shape}: must be a scalar or ({Xa.shape[0]},)")
     plus, sign = _sum_signs(n, loaded)
-    F = np.asarray(force)
     total = np.asarray(F / (Xa @ plus), dtype=np.complex128)
     alternating = np.asarray(F / (Xa @ sign), dtype=np.complex128)
-    return ChainSums(np.asarray(frequency, dtype=float), total, alternating)
+    return ChainSums(fa, total, alternating)
 
 
 def chain_impedance_sums(
@@ -359,8 +398,18 @@ class ChainTimeResponse:
     v: Array
 
     def peaks(self, n_neighbours: int = 2) -> tuple[list[float], list[float]]:
-        """Peak displacement [m] and its time [s] for the loaded area and its neighbours."""
+        """Peak displacement [m] and its time [s] for the loaded area and its ``n_neighbours`` following ones.
+
+        Raises
+        ------
+        ParameterError
+            ``n_neighbours`` not an integer in 0..n_areas // 2.
+        """
         c = self.x.shape[1] // 2
+        if not isinstance(n_neighbours, (int, np.integer)) or not 0 <= n_neighbours <= c:
+            raise ParameterError(
+                f"n_neighbours = {n_neighbours!r}: must be an integer in 0..{c} (areas past the centre)"
+            )
         amps, times = [], []
         for k in range(n_neighbours + 1):
             col = self.x[:, c + k]
@@ -391,8 +440,18 @@ def chain_time_response(
         Time step and record length [s].
     A, t0, td : float
         Pulse amplitude [N], time [s] and duration parameter [s] of Eq. (1).
+
+    Raises
+    ------
+    ParameterError
+        Bad ``n_areas``, ``dt`` or ``duration`` not finite and > 0, a record
+        shorter than one step, or a bad pulse (:func:`~clm_core.excitation.decay_pulse`).
     """
     M, C, K = chain_matrices(soil, n_areas)
+    dt = positive("dt", dt, unit="s")
+    duration = positive("duration", duration, unit="s")
+    if duration < dt:
+        raise ParameterError(f"duration = {duration:g} s: must be >= dt = {dt:g} s (at least one step)")
     n_steps = int(round(duration / dt))
     t = np.arange(n_steps + 1) * dt
     p = decay_pulse(t, A, t0, td)

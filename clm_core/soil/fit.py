@@ -60,7 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from clm_core.arrays import Array, CArray
-from clm_core.checks import chain_min_eigenvalue, clm_chain_admissible
+from clm_core.checks import chain_min_eigenvalue, clm_chain_admissible, finite, odd_count
 from clm_core.errors import ParameterError, StabilityError
 from clm_core.soil.chain import CHAIN_PARAMS
 from clm_core.soil.formulas import sum_impedance_jacobian, sum_impedances
@@ -228,14 +228,23 @@ class ClmSumFit:
 def _band(
     freqs: ArrayLike, values: Sequence[ArrayLike], fmin: float, fmax: float, name: str
 ) -> tuple[Array, list[CArray]]:
-    f = np.asarray(freqs, dtype=float)
+    try:
+        f = np.asarray(freqs, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"freqs = {freqs!r}: must be real numbers [Hz]") from None
     if f.ndim != 1:
         raise ParameterError(f"freqs: must be 1-D, got shape {f.shape}")
-    if not (math.isfinite(fmin) and math.isfinite(fmax)) or fmin < 0 or fmax <= fmin:
+    if not np.all(np.isfinite(f)):
+        raise ParameterError(f"freqs = {f[~np.isfinite(f)][0]} Hz: must be finite")
+    fmin, fmax = finite("fmin", fmin), finite("fmax", fmax)
+    if fmin < 0 or fmax <= fmin:
         raise ParameterError(f"band [fmin, fmax] = [{fmin:g}, {fmax:g}] Hz: need 0 <= fmin < fmax")
     out = []
     for i, v in enumerate(values):
-        z = np.asarray(v, dtype=np.complex128)
+        try:
+            z = np.asarray(v, dtype=np.complex128)
+        except (TypeError, ValueError):
+            raise ParameterError(f"{name}[{i}] = {v!r}: must be complex numbers [N/m]") from None
         if z.shape != f.shape:
             raise ParameterError(f"{name}[{i}]: shape {z.shape} differs from freqs {f.shape}")
         out.append(z)
@@ -345,6 +354,11 @@ def fit_lysmer(
     Returns
     -------
     LysmerFit
+
+    Raises
+    ------
+    ParameterError
+        Bad band, shapes, non-finite frequencies or data, norm or mass rule.
     """
     _check_mass(mass)
     f, (K,) = _band(freqs, [impedance], fmin, fmax, "impedance")
@@ -414,7 +428,8 @@ def fit_clm_sums(
     Raises
     ------
     ParameterError
-        Bad band, shapes, norm, route or option.
+        Bad band, shapes, non-finite frequencies, norm, route, option or
+        ``n_areas`` (an odd count >= 1).
     StabilityError
         Non-admissible parameters (see the module docstring).
     """
@@ -423,6 +438,8 @@ def fit_clm_sums(
     _check_mass(mass)
     if route not in ROUTES:
         raise ParameterError(f"route = {route!r}: must be one of {ROUTES}")
+    if n_areas is not None:
+        n_areas = odd_count("n_areas", n_areas)
     f, (S, A) = _band(freqs, [total, alternating], fmin, fmax, "sums")
     s = 2j * np.pi * f
     dS, dA = sum_impedance_jacobian(s)

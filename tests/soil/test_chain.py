@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -14,6 +16,8 @@ from clm_core.soil.chain import (
     chain_impedance_sums,
     chain_matrices,
     chain_response,
+    chain_sums,
+    chain_time_response,
     laplace,
 )
 from clm_core.soil.formulas import sum_impedance_jacobian, sum_impedances
@@ -169,3 +173,83 @@ def test_damping_eigenvalue_closed_form() -> None:
 def test_errors(call: object, match: str) -> None:
     with pytest.raises(ParameterError, match=match):
         call()  # type: ignore[operator]
+
+
+# ---------------------------------------------------------------- bad input
+
+
+_SOIL = {"mf": 380.0, "kf": 7.2e7, "df": 6.8e5, "kc": 1.6e8, "dc": -1.2e5}
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragment"),
+    [
+        ({"loaded": float("nan")}, "loaded = nan: must be an integer"),
+        ({"loaded": "x"}, "loaded = 'x': must be an integer"),
+        ({"loaded": 1.5}, "loaded = 1.5: must be an integer"),
+        ({"loaded": 5}, "loaded = 5: must be an area index 0..4"),
+        ({"s": [np.nan]}, "must be finite"),
+        ({"s": [np.inf]}, "must be finite"),
+        ({"s": []}, "s: must be a non-empty 1-D array"),
+        ({"s": [[1j, 2j]]}, "s: must be a non-empty 1-D array"),
+        ({"s": "abc"}, "s = 'abc': must be complex numbers"),
+    ],
+)
+def test_chain_response_refuses_bad_input(kwargs: dict[str, object], fragment: str) -> None:
+    args: dict[str, object] = {"s": [2j * np.pi]} | kwargs
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        chain_response(_SOIL, 5, args.pop("s"), **args)  # type: ignore[arg-type]
+
+
+def test_laplace_refuses_nonfinite_sigma() -> None:
+    with pytest.raises(ParameterError, match=re.escape("sigma = nan: must be finite")):
+        laplace([1.0], float("nan"))
+
+
+@pytest.mark.parametrize(
+    ("frequency", "X", "force", "loaded", "fragment"),
+    [
+        ([1.0, 2.0], np.ones(5), 1.0, None, "X: shape (5,): must be (n_f, 2n + 1)"),
+        ([], np.zeros((0, 5)), 1.0, None, "X: shape (0, 5): must be (n_f, 2n + 1) with n_f >= 1"),
+        ([1.0, 2.0, 3.0], np.ones((2, 5)), 1.0, None, "frequency: shape (3,): must be (2,)"),
+        ([1.0, 2.0], np.ones((2, 5)), [1.0, 2.0, 3.0], None, "force: shape (3,): must be a scalar or (2,)"),
+        ([1.0, 2.0], np.ones((2, 5)), 1.0, 7, "loaded = 7: must be an area index 0..4"),
+        ([1.0, 2.0], np.ones((2, 5)), 1.0, -1, "loaded = -1: must be an area index 0..4"),
+        ([1.0], "abc", 1.0, None, "must be numbers"),
+    ],
+)
+def test_chain_sums_refuses_bad_input(
+    frequency: object, X: object, force: object, loaded: int | None, fragment: str
+) -> None:
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        chain_sums(frequency, X, force, loaded=loaded)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragment"),
+    [
+        ({"dt": 0.0}, "dt = 0 s: must be > 0"),
+        ({"dt": -1e-5}, "dt = -1e-05 s: must be > 0"),
+        ({"dt": float("nan")}, "dt = nan: must be finite"),
+        ({"duration": -0.1}, "duration = -0.1 s: must be > 0"),
+        ({"duration": 0.0}, "duration = 0 s: must be > 0"),
+        ({"duration": float("inf")}, "duration = inf: must be finite"),
+        ({"duration": 5e-5}, "duration = 5e-05 s: must be >= dt"),
+        ({"A": float("nan")}, "A = nan: must be finite"),
+        ({"t0": float("nan")}, "t0 = nan: must be finite"),
+        ({"td": 0.0}, "td = 0 s: must be > 0"),
+        ({"n_areas": 4}, "n_areas = 4: must be odd"),
+    ],
+)
+def test_chain_time_response_refuses_bad_settings(kwargs: dict[str, float], fragment: str) -> None:
+    soil = load_soil("mevergnies", "clm")
+    args = {"n_areas": 5, "dt": 1e-4, "duration": 0.01} | kwargs
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        chain_time_response(soil, **args)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("n_neighbours", [3, -1, 1.5])
+def test_time_response_peaks_refuses_neighbours_outside_the_chain(n_neighbours: int) -> None:
+    resp = chain_time_response(load_soil("mevergnies", "clm"), 5, 1e-4, 0.01)
+    with pytest.raises(ParameterError, match=re.escape(f"n_neighbours = {n_neighbours!r}: must be an integer in 0..2")):
+        resp.peaks(n_neighbours)

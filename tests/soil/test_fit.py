@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -237,3 +238,40 @@ def test_route_is_checked() -> None:
     S, A, _ = chain_sums(f, TABLE1, 5)
     with pytest.raises(ParameterError, match="route = 'both'"):
         fit_clm_sums(f, S, A, fmin=0.0, fmax=80.0, route="both")  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------- bad input
+
+
+def _sums() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    from clm_core.soil.chain import chain_impedance_sums
+
+    f = np.linspace(1.0, 50.0, 20)
+    S = chain_impedance_sums({"mf": 380.0, "kf": 7.2e7, "df": 6.8e5, "kc": 1.6e8, "dc": -1.2e5}, 41, f)
+    return f, S.total, S.alternating
+
+
+@pytest.mark.parametrize(
+    ("change", "fragment"),
+    [
+        ({"fmin": "x"}, "fmin = 'x': must be a real number"),
+        ({"n_areas": 4}, "n_areas = 4: must be odd"),
+        ({"n_areas": float("nan")}, "n_areas = nan: must be an integer"),
+        ({"n_areas": "x"}, "n_areas = 'x': must be an integer"),
+        ({"freqs": "nan"}, "freqs = nan Hz: must be finite"),
+        ({"total": "abc"}, "sums[0] = 'abc': must be complex numbers"),
+    ],
+)
+def test_fit_clm_sums_refuses_bad_input(change: dict[str, object], fragment: str) -> None:
+    f, total, alternating = _sums()
+    args: dict[str, object] = {"freqs": f, "total": total, "alternating": alternating, "fmin": 1.0, "fmax": 50.0}
+    args |= change
+    if isinstance(args["freqs"], str):
+        args["freqs"] = np.r_[np.nan, f[1:]]
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        fit_clm_sums(**args)  # type: ignore[arg-type]
+
+
+def test_fit_lysmer_refuses_text_frequencies() -> None:
+    with pytest.raises(ParameterError, match=re.escape("freqs = 'abc': must be real numbers")):
+        fit_lysmer("abc", [1.0], fmin=1.0, fmax=50.0)
