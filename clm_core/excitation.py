@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from clm_core.checks import finite, positive
 from clm_core.errors import ParameterError
 
 
@@ -24,10 +25,16 @@ def decay_pulse(t: ArrayLike, A: float = 1.0, t0: float = 0.05, td: float = 0.00
         Onset [s] (0.05 s in the paper, for checking causality).
     td : float
         Decay time [s]: 0.001 s covers 0–80 Hz, 0.0001 s higher frequencies.
+
+    Raises
+    ------
+    ParameterError
+        ``A``, ``t0`` or a time not finite, or ``td`` not > 0.
     """
-    if td <= 0:
-        raise ParameterError(f"td = {td}: decay time must be > 0")
+    A, t0, td = _pulse(A, t0, td)
     t = np.asarray(t, dtype=float)
+    if not np.all(np.isfinite(t)):
+        raise ParameterError(f"t = {t[~np.isfinite(t)][0]} s: times must be finite")
     out = np.zeros_like(t)
     on = t >= t0
     out[on] = A * np.exp(-(t[on] - t0) / td)
@@ -35,6 +42,20 @@ def decay_pulse(t: ArrayLike, A: float = 1.0, t0: float = 0.05, td: float = 0.00
 
 
 def decay_pulse_spectrum(f: ArrayLike, A: float = 1.0, t0: float = 0.05, td: float = 0.001) -> NDArray[np.complex128]:
-    """Continuous Fourier transform of Eq. (1), convention exp(-j w t): A td e^{-j w t0} / (1 + j w td) [N s]."""
+    """Continuous Fourier transform of Eq. (1), convention exp(-j w t): A td e^{-j w t0} / (1 + j w td) [N s].
+
+    Raises
+    ------
+    ParameterError
+        As :func:`decay_pulse` (a frequency [Hz] in place of a time).
+    """
+    A, t0, td = _pulse(A, t0, td)
     w = 2 * np.pi * np.asarray(f, dtype=float)
+    if not np.all(np.isfinite(w)):
+        raise ParameterError(f"f = {w[~np.isfinite(w)][0] / (2 * np.pi)} Hz: frequencies must be finite")
     return np.asarray(A * td * np.exp(-1j * w * t0) / (1 + 1j * w * td), dtype=np.complex128)
+
+
+def _pulse(A: float, t0: float, td: float) -> tuple[float, float, float]:
+    """The pulse parameters of Eq. (1), checked: A [N] and t0 [s] finite, td [s] > 0."""
+    return finite("A", A), finite("t0", t0), positive("td", td, unit="s")

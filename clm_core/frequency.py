@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike
 from scipy.signal import argrelmax
 
 from clm_core.arrays import Array, CArray
+from clm_core.checks import finite, positive
 from clm_core.errors import ParameterError
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
@@ -62,10 +63,24 @@ class Receptance:
 
 
 def _check_frequencies(f: ArrayLike) -> Array:
-    f = np.asarray(f, dtype=float)
+    try:
+        f = np.asarray(f, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"frequencies = {f!r}: must be real numbers [Hz]") from None
     if f.ndim != 1 or f.size == 0 or not np.all(np.isfinite(f)) or np.any(f < 0):
         raise ParameterError("frequencies: need a non-empty 1-D array of finite values >= 0 Hz")
     return f
+
+
+def _outputs(system: TrackSystem, n_out: int) -> int:
+    """The sleeper of the unit force (the centre one) after checking ``n_out``, the receptances wanted."""
+    c = centre_sleeper(system)
+    available = system.n_sleepers - c
+    if not isinstance(n_out, (int, np.integer)) or not 1 <= n_out <= available:
+        raise ParameterError(
+            f"n_out = {n_out!r}: must be an integer in 1..{available} (sleepers from the centre of {system.n_sleepers})"
+        )
+    return c
 
 
 def centre_sleeper(system: TrackSystem) -> int:
@@ -77,12 +92,20 @@ def dynamic_solve(system: TrackSystem, f: ArrayLike, force: Array) -> CArray:
     """Solve D(w) X = F at each frequency; returns X with shape (n_f, n_dof) [m].
 
     Uses the banded LU of LAPACK (``solve_banded``): O(n b^2) per frequency.
+
+    Raises
+    ------
+    ParameterError
+        Frequencies not a non-empty 1-D array of finite values >= 0 Hz, or
+        ``force`` not finite of shape (n_dof,).
     """
     f = _check_frequencies(f)
+    F = np.asarray(force, dtype=complex)
+    if F.shape != (system.n_dof,) or not np.all(np.isfinite(F)):
+        raise ParameterError(f"force: shape {F.shape}: must be ({system.n_dof},) finite values [N], one per DOF")
     b = system.half_bandwidth
     Kb, Mb, Cb = (system.banded(A).astype(float) for A in (system.K, system.M, system.C))
     out = np.empty((f.size, system.n_dof), dtype=complex)
-    F = np.asarray(force, dtype=complex)
     for k, fk in enumerate(f):
         w = 2 * np.pi * fk
         ab = Kb - w**2 * Mb + 1j * w * Cb
@@ -95,10 +118,14 @@ def receptance(system: TrackSystem, f: ArrayLike, n_out: int = 5) -> Receptance:
 
     The unit force acts on the rail above the central sleeper; outputs are
     the rail deflections above it and the ``n_out - 1`` following sleepers.
+
+    Raises
+    ------
+    ParameterError
+        Bad frequencies (:func:`dynamic_solve`), or ``n_out`` not an integer
+        from 1 to the sleepers from the centre to the end.
     """
-    c = centre_sleeper(system)
-    if c + n_out > system.n_sleepers:
-        raise ParameterError(f"n_out = {n_out}: only {system.n_sleepers - c} sleepers from the centre")
+    c = _outputs(system, n_out)
     F = np.zeros(system.n_dof)
     F[system.rail_w[system.sleeper_node[c]]] = 1.0
     X = dynamic_solve(system, f, F)
@@ -121,10 +148,28 @@ def receptance_from_pulse(
     error f' = tan(pi f dt)/(pi dt) is negligible for pi f dt << 1
     (2.5e-4 relative at 400 Hz with the default dt = 2e-5 s). The record
     must be long enough for the response to decay (duration >> 1/(damping)).
+
+    Raises
+    ------
+    ParameterError
+        ``fmax``, ``dt``, ``duration`` or ``td`` not finite and > 0, ``fmax``
+        not below the Nyquist frequency, a record without a frequency in
+        (0, fmax], the pulse onset ``t0`` not finite or not inside the record,
+        or a bad ``n_out`` (:func:`receptance`).
     """
+    fmax = positive("fmax", fmax, unit="Hz")
+    dt = positive("dt", dt, unit="s")
+    duration = positive("duration", duration, unit="s")
+    t0 = finite("t0", t0)
     if fmax >= 0.5 / dt:
         raise ParameterError(f"fmax = {fmax} Hz: must be below the Nyquist frequency {0.5 / dt:g} Hz")
-    c = centre_sleeper(system)
+    if duration * fmax < 1.0:
+        raise ParameterError(
+            f"duration = {duration:g} s: must be >= 1/fmax = {1.0 / fmax:g} s (else no frequency up to fmax)"
+        )
+    if not 0.0 <= t0 < duration:
+        raise ParameterError(f"t0 = {t0:g} s: the pulse onset must be inside the record [0, {duration:g}) s")
+    c = _outputs(system, n_out)
     n_steps = int(round(duration / dt))
     t = np.arange(n_steps + 1) * dt
     p = decay_pulse(t, 1.0, t0, td)

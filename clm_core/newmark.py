@@ -19,6 +19,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from clm_core.arrays import Array
+from clm_core.checks import positive
 from clm_core.errors import ParameterError
 
 
@@ -33,16 +34,23 @@ class NewmarkLinear:
         because K + 2/dt C + 4/dt^2 M is non-singular.
     dt : float
         Time step [s].
+
+    Raises
+    ------
+    ParameterError
+        ``dt`` not finite and > 0, or M, C, K not square of one size.
     """
 
     def __init__(self, M: sp.spmatrix, C: sp.spmatrix, K: sp.spmatrix, dt: float) -> None:
-        if not dt > 0:
-            raise ParameterError(f"dt = {dt}: time step must be > 0")
+        dt = positive("dt", dt, unit="s")
         self.M, self.C, self.K = (sp.csc_matrix(x) for x in (M, C, K))
-        self.dt = float(dt)
+        n = self.K.shape[0]
+        shapes = [x.shape for x in (self.M, self.C, self.K)]
+        if any(shape != (n, n) for shape in shapes):
+            raise ParameterError(f"M, C, K: shapes {shapes}: must be square of one size")
+        self.dt = dt
         a0, a1 = 4.0 / dt**2, 2.0 / dt
         self._lu = spla.splu(sp.csc_matrix(self.K + a1 * self.C + a0 * self.M))
-        n = self.K.shape[0]
         self.u = np.zeros(n)
         self.v = np.zeros(n)
         self.a = np.zeros(n)
@@ -71,8 +79,18 @@ class NewmarkLinear:
         -------
         t : (n_steps + 1,) array
         u, v : (n_steps + 1, n) arrays [m], [m/s]
+
+        Raises
+        ------
+        ParameterError
+            ``n_steps`` not an integer >= 0, or a ``force`` array not of
+            shape (n_steps + 1, n).
         """
         n = self.K.shape[0]
+        if not isinstance(n_steps, (int, np.integer)) or n_steps < 0:
+            raise ParameterError(f"n_steps = {n_steps!r}: must be an integer >= 0")
+        if isinstance(force, np.ndarray) and force.shape != (n_steps + 1, n):
+            raise ParameterError(f"force: shape {force.shape}: must be (n_steps + 1, n) = ({n_steps + 1}, {n})")
         t: Array = np.arange(n_steps + 1, dtype=np.float64) * self.dt
         F = force if isinstance(force, np.ndarray) else None
 
