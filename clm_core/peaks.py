@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from clm_core.errors import ParameterError
+from clm_core.checks import finite, positive
+from clm_core.errors import InputError, ParameterError
 
 #: Bays excluded at each end of a run (start-up transient, sleepers not fully passed).
 MARGIN_BAYS = 5
@@ -61,10 +62,25 @@ class PeakWindow:
     margin_bays: int = MARGIN_BAYS
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.spacing) and self.spacing > 0):
-            raise ParameterError(f"spacing = {self.spacing}: must be a finite length > 0 m")
-        if self.margin_bays < 0:
-            raise ParameterError(f"margin_bays = {self.margin_bays}: must be >= 0")
+        """Check and convert the fields.
+
+        Raises
+        ------
+        ParameterError
+            ``spacing`` not finite and > 0, a position that is not a real
+            number, or ``margin_bays`` not an integer >= 0.
+        """
+        object.__setattr__(self, "spacing", positive("spacing", self.spacing, unit="m"))
+        for name in ("front_start", "rear_end"):
+            value = getattr(self, name)
+            try:
+                object.__setattr__(self, name, float(value))
+            except (TypeError, ValueError):
+                raise ParameterError(f"{name} = {value!r}: must be a real number [m]") from None
+        bays = self.margin_bays
+        if not isinstance(bays, (int, np.integer)) or isinstance(bays, bool) or bays < 0:
+            raise ParameterError(f"margin_bays = {bays!r}: must be an integer >= 0")
+        object.__setattr__(self, "margin_bays", int(bays))
 
     @property
     def x_from(self) -> float:
@@ -130,8 +146,7 @@ class PeakWindow:
 def peak_window(front_start: float, rear_end: float, spacing: float, margin_bays: int = MARGIN_BAYS) -> PeakWindow:
     """The :class:`PeakWindow` of a run whose loads start with the foremost at ``front_start`` [m]
     and end with the rearmost at ``rear_end`` [m] on a track of sleeper spacing ``spacing`` [m]."""
-    return PeakWindow(spacing=float(spacing), front_start=float(front_start), rear_end=float(rear_end),
-                      margin_bays=int(margin_bays))
+    return PeakWindow(spacing=spacing, front_start=front_start, rear_end=rear_end, margin_bays=margin_bays)
 
 
 def masked_max(values: ArrayLike, mask: ArrayLike) -> tuple[float, int, bool]:
@@ -149,9 +164,18 @@ def masked_max(values: ArrayLike, mask: ArrayLike) -> tuple[float, int, bool]:
     (value, index, fallback)
         The maximum, its flat index in ``values`` and whether the fallback was
         used (NaN, -1, True when there is no finite value at all).
+
+    Raises
+    ------
+    InputError
+        A ``mask`` that does not broadcast to the shape of ``values``.
     """
     v = np.asarray(values, dtype=float)
-    m = np.broadcast_to(np.asarray(mask, dtype=bool), v.shape).ravel()
+    mk = np.asarray(mask, dtype=bool)
+    try:
+        m = np.broadcast_to(mk, v.shape).ravel()
+    except ValueError:
+        raise InputError(f"mask: shape {mk.shape}: does not broadcast to the values' shape {v.shape}") from None
     v = v.ravel()
     ok = np.isfinite(v)
     sel = ok & m
@@ -192,24 +216,41 @@ class BlockPeaks:
         Bays excluded at the start.
     t_start : float
         Time of the start [s].
+
+    Raises
+    ------
+    ParameterError
+        ``front_start`` or ``t_start`` not finite, or a bad ``spacing`` or
+        ``margin_bays`` (:class:`PeakWindow`).
     """
 
     def __init__(self, front_start: float, spacing: float, margin_bays: int = MARGIN_BAYS,
                  t_start: float = 0.0) -> None:
-        self.x_from = peak_window(front_start, math.inf, spacing, margin_bays).x_from
-        self._front = float(front_start)
-        self._t = float(t_start)
+        self._front = finite("front_start", front_start)
+        self._t = finite("t_start", t_start)
+        self.x_from = peak_window(self._front, math.inf, spacing, margin_bays).x_from
         self._best = -math.inf
         self._best_all = -math.inf
         self.t_from: float | None = None  # time of the first admitted instant [s]
 
     def add(self, block_peaks: ArrayLike, front_positions: ArrayLike, times: ArrayLike, values: ArrayLike) -> None:
         """One block: per-wheel every-step maxima (W,); then, at its k output instants, the foremost load's
-        positions (k,) [m], the times (k,) [s] and the values under the wheels (k, W)."""
+        positions (k,) [m], the times (k,) [s] and the values under the wheels (k, W).
+
+        Raises
+        ------
+        InputError
+            Positions and times of different counts, or values that are not k x W.
+        """
         pk = np.asarray(block_peaks, dtype=float)
         f = np.asarray(front_positions, dtype=float)
         t = np.asarray(times, dtype=float)
         v = np.asarray(values, dtype=float)
+        if f.size != t.size or v.size != t.size * pk.size:
+            raise InputError(
+                f"BlockPeaks.add: {f.size} positions, {t.size} times and {v.size} values for {pk.size} wheels: "
+                "need k positions, k times and k x W values"
+            )
         v = v.reshape(t.size, -1) if t.size else np.empty((0, pk.size))  # a block without output instants
         if np.isfinite(pk).any():
             self._best_all = max(self._best_all, float(np.nanmax(np.where(np.isfinite(pk), pk, -np.inf))))

@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array, IntArray
+from clm_core.checks import positive
 from clm_core.errors import InputError, ParameterError, StabilityError
 from clm_core.params import PER_SLEEPER_NAMES, ModelParams
 
@@ -45,7 +46,15 @@ def beam_element(EI: float, m: float, L: float) -> tuple[Array, Array]:
         Mass per unit length [kg/m].
     L : float
         Element length [m].
+
+    Raises
+    ------
+    ParameterError
+        ``EI``, ``m`` or ``L`` not finite and > 0.
     """
+    EI = positive("EI", EI, unit="N m^2")
+    m = positive("m", m, unit="kg/m")
+    L = positive("L", L, unit="m")
     k = (
         EI
         / L**3
@@ -348,10 +357,17 @@ def assemble(
     Raises
     ------
     ParameterError
-        Bad sizes or per-sleeper values.
+        Bad sizes (a count or index that is not an integer, or out of range)
+        or per-sleeper values.
     StabilityError
         The assembled damping matrix is not positive semi-definite.
     """
+    counts = {"n_sleepers": n_sleepers, "elements_per_bay": elements_per_bay, "first_sleeper": first_sleeper}
+    if overhang_elements is not None:
+        counts["overhang_elements"] = overhang_elements
+    for name, value in counts.items():
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
+            raise ParameterError(f"{name} = {value!r}: must be an integer")
     if n_sleepers < 2:
         raise ParameterError(f"n_sleepers = {n_sleepers}: need at least 2")
     if elements_per_bay < 1:

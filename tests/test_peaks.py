@@ -11,14 +11,16 @@ while the whole-run maximum is at least 0.5 % higher.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from clm_core.cli import main
+from clm_core.errors import InputError, ParameterError
 from clm_core.io.history import load_history
-from clm_core.peaks import BlockPeaks, masked_max, peak_window
+from clm_core.peaks import BlockPeaks, PeakWindow, masked_max, peak_window
 
 D = 0.6  # sleeper spacing of the Mevergnies track [m]
 
@@ -113,3 +115,49 @@ def test_clm_simulate_of_a_short_run(tmp_path: Path) -> None:
     assert main(["simulate", "--duration", "0.2", "--out", str(tmp_path / "short")]) == 0
     summary = json.loads((tmp_path / "short" / "summary.json").read_text())
     assert summary
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        ((0.0, 10.0, "x"), "spacing = 'x': must be a real number"),
+        ((0.0, 10.0, None), "spacing = None: must be a real number"),
+        ((0.0, 10.0, float("nan")), "spacing = nan: must be finite"),
+        ((0.0, 10.0, 0.0), "spacing = 0 m: must be > 0"),
+        (("x", 10.0, 0.6), "front_start = 'x': must be a real number"),
+        ((0.0, None, 0.6), "rear_end = None: must be a real number"),
+        ((0.0, 10.0, 0.6, -1), "margin_bays = -1: must be an integer >= 0"),
+        ((0.0, 10.0, 0.6, 1.5), "margin_bays = 1.5: must be an integer >= 0"),
+        ((0.0, 10.0, 0.6, float("nan")), "margin_bays = nan: must be an integer >= 0"),
+    ],
+)
+def test_peak_window_refuses_bad_values(args: tuple[object, ...], fragment: str) -> None:
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        peak_window(*args)  # type: ignore[arg-type]
+
+
+def test_peak_window_converts_its_fields() -> None:
+    w = PeakWindow(np.float64(0.6), 1, 10, np.int64(2))  # type: ignore[arg-type]
+    assert (type(w.spacing), type(w.front_start), type(w.margin_bays)) == (float, float, int)
+
+
+def test_masked_max_refuses_a_mask_of_another_shape() -> None:
+    with pytest.raises(InputError, match=re.escape("mask: shape (4,): does not broadcast to the values' shape (3,)")):
+        masked_max(np.ones(3), np.ones(4, bool))
+
+
+@pytest.mark.parametrize(("front_start", "t_start", "fragment"),
+                         [(float("nan"), 0.0, "front_start = nan: must be finite"),
+                          (0.0, float("inf"), "t_start = inf: must be finite")])
+def test_block_peaks_refuses_nonfinite_start(front_start: float, t_start: float, fragment: str) -> None:
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        BlockPeaks(front_start, 0.6, t_start=t_start)
+
+
+@pytest.mark.parametrize(
+    ("front", "times", "values"),
+    [([0.0, 1.0], [0.0, 0.1], [1.0, 2.0, 3.0]), ([0.0], [0.0, 0.1], [[1.0, 2.0], [1.0, 2.0]])],
+)
+def test_block_peaks_refuses_blocks_of_mismatched_sizes(front: list[float], times: list[float], values: object) -> None:
+    with pytest.raises(InputError, match=re.escape("need k positions, k times and k x W values")):
+        BlockPeaks(0.0, 0.6).add([1.0, 2.0], front, times, values)  # type: ignore[arg-type]

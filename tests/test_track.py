@@ -1,11 +1,14 @@
 """Track assembly and receptances: closed-form limits, convergence, two routes."""
 
+import re
+
 import numpy as np
 import pytest
 
+from clm_core.errors import ParameterError
 from clm_core.frequency import dynamic_solve, receptance, receptance_from_pulse
 from clm_core.params import ModelParams, load_model
-from clm_core.track import assemble
+from clm_core.track import assemble, beam_element
 
 
 def _boef(p: ModelParams) -> tuple[float, float]:
@@ -102,3 +105,39 @@ def test_point_load_outside_rail_refused() -> None:
 
     with pytest.raises(InputError, match="outside the rail"):
         s.point_load(100.0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragment"),
+    [
+        ({"n_sleepers": 2.5}, "n_sleepers = 2.5: must be an integer"),
+        ({"n_sleepers": float("nan")}, "n_sleepers = nan: must be an integer"),
+        ({"n_sleepers": "x"}, "n_sleepers = 'x': must be an integer"),
+        ({"elements_per_bay": 1.5}, "elements_per_bay = 1.5: must be an integer"),
+        ({"elements_per_bay": float("nan")}, "elements_per_bay = nan: must be an integer"),
+        ({"first_sleeper": 1.5}, "first_sleeper = 1.5: must be an integer"),
+        ({"first_sleeper": "x"}, "first_sleeper = 'x': must be an integer"),
+        ({"overhang_elements": 1.5}, "overhang_elements = 1.5: must be an integer"),
+        ({"overhang_elements": float("nan")}, "overhang_elements = nan: must be an integer"),
+        ({"n_sleepers": 1}, "n_sleepers = 1: need at least 2"),
+    ],
+)
+def test_assemble_refuses_bad_counts(kwargs: dict[str, object], fragment: str) -> None:
+    args: dict[str, object] = {"n_sleepers": 11} | kwargs
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        assemble(load_model(), **args)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        ((1.0, 1.0, 0.0), "L = 0 m: must be > 0"),
+        ((1.0, 1.0, float("nan")), "L = nan: must be finite"),
+        ((float("nan"), 1.0, 0.3), "EI = nan: must be finite"),
+        ((-1.0, 1.0, 0.3), "EI = -1 N m^2: must be > 0"),
+        ((1.0, -1.0, 0.3), "m = -1 kg/m: must be > 0"),
+    ],
+)
+def test_beam_element_refuses_bad_values(args: tuple[float, float, float], fragment: str) -> None:
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        beam_element(*args)
