@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from clm_core.arrays import Array, IntArray
+from clm_core.checks import positive
 from clm_core.errors import InputError, ParameterError
 from clm_core.io.timebase import NS
 from clm_core.online import policy as rules
@@ -48,8 +49,7 @@ _F8, _I8 = np.dtype(np.float64), np.dtype(np.int64)
 
 def _dt_ns(dt: float) -> int:
     """``dt`` [s] as a whole number of nanoseconds (refused otherwise)."""
-    if not (math.isfinite(dt) and dt > 0):
-        raise ParameterError(f"dt = {dt}: time step must be finite and > 0 s")
+    dt = positive("dt", dt, unit="s")
     n = round(dt * NS)
     if n < 1 or abs(dt * NS - n) > 1e-3:
         raise ParameterError(f"dt = {dt!r} s: the online model needs a whole number of nanoseconds")
@@ -109,7 +109,7 @@ class OnlineTrackModel:
     Raises
     ------
     ParameterError
-        Bad sizes, time step, ``max_gap`` or policy.
+        Bad sizes, time step, ``max_gap``, ``wheel_ids`` (not integers) or policy.
     StabilityError
         A parameter set whose time integration would not be stable.
     """
@@ -128,13 +128,12 @@ class OnlineTrackModel:
         stats: OnlineStats | None = None,
         policy: InputPolicy | None = None,
     ) -> None:
-        if not (math.isfinite(max_gap) and max_gap > 0):
-            raise ParameterError(f"max_gap = {max_gap}: must be a finite time > 0 s")
+        max_gap = positive("max_gap", max_gap, unit="s")
         if initial_state not in ("static", "rest"):
             raise ParameterError(f"initial_state = {initial_state!r}: one of static, rest")
         self.params = params
         self.policy = policy if policy is not None else InputPolicy()
-        self.dt_ns = _dt_ns(float(dt))
+        self.dt_ns = _dt_ns(dt)
         self.dt = self.dt_ns / NS
         self.n_sleepers = int(n_sleepers)
         self.elements_per_bay = int(elements_per_bay)
@@ -148,14 +147,17 @@ class OnlineTrackModel:
         self.timeline = Timeline(round(self.max_gap * NS), self.policy.resync_confirm)
         self._slot: dict[int, int] = {}
         self._slot_ids: list[int] = []
-        if wheel_ids is not None:
-            for i in np.asarray(wheel_ids, dtype=np.int64).ravel().tolist():
-                if i not in self._slot:
-                    self._register(i)
-        self._fixed_set = wheel_ids is not None
         # the previous accepted frame's wheels per slot (capacity grows; NaN: absent)
         self._pos = np.full(8, np.nan)
         self._F = np.zeros(8)
+        if wheel_ids is not None:
+            ids = np.asarray(wheel_ids)
+            if ids.size and not np.issubdtype(ids.dtype, np.integer):
+                raise ParameterError(f"wheel_ids = {wheel_ids!r}: must be integers")
+            for i in ids.astype(np.int64).ravel().tolist():
+                if i not in self._slot:
+                    self._register(i)
+        self._fixed_set = wheel_ids is not None
         self.epoch_ns = 0  # stamp of the frame that started the state: step k is at epoch_ns + k dt_ns
         self.stats = stats if stats is not None else OnlineStats()
         # one wheel check per set of ids (the frames of a stream carry the same ids): (bytes, slots, slot count)

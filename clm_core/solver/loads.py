@@ -166,17 +166,17 @@ def wheel_arrays(positions: ArrayLike, forces: ArrayLike | None, t: float, what:
     Raises
     ------
     InputError
-        Not 1-D, sizes differ, or a value rule of :func:`check_values`.
+        Not real numbers, not 1-D, sizes differ, or a value rule of :func:`check_values`.
     """
-    P = np.array(positions, dtype=float, ndmin=1)
+    try:
+        P = np.array(positions, dtype=float, ndmin=1)
+        F = np.zeros_like(P) if forces is None else np.array(forces, dtype=float, ndmin=1)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: positions and forces must be real numbers [m], [N]") from None
     if P.ndim != 1:
         raise InputError(f"{what}: positions must be a 1-D array (n_wheels,), got shape {P.shape}")
-    if forces is None:
-        F = np.zeros_like(P)
-    else:
-        F = np.array(forces, dtype=float, ndmin=1)
-        if F.shape != P.shape:
-            raise InputError(f"{what}: forces have shape {F.shape}, positions {P.shape}; one force per wheel")
+    if F.shape != P.shape:
+        raise InputError(f"{what}: forces have shape {F.shape}, positions {P.shape}; one force per wheel")
     check_values(P[None, :], F[None, :], np.array([t]), what)
     return P, np.where(np.isfinite(P), F, 0.0)
 

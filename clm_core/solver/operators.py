@@ -325,8 +325,8 @@ class OperatorCache:
         sleeper_values: SleeperValues,
         size: int = 64,
     ) -> None:
-        if size < 1:
-            raise ParameterError(f"cache_size = {size}: must be >= 1")
+        if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 1:
+            raise ParameterError(f"cache_size = {size!r}: must be an integer >= 1")
         self.params = params
         self.dt = float(dt)
         self.window = window

@@ -36,7 +36,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from clm_core.arrays import Array, IntArray
-from clm_core.errors import InputError, ParameterError
+from clm_core.checks import finite, positive
+from clm_core.errors import InputError
 from clm_core.params import ModelParams
 from clm_core.solver import _kernels as kern
 from clm_core.solver.coupling import TwoPhaseCoupling
@@ -109,13 +110,10 @@ class TrackSimulator:
         margin_sleepers: int | None = None,
         cache_size: int = 64,
     ) -> None:
-        dt = float(dt)
-        if not (math.isfinite(dt) and dt > 0):
-            raise ParameterError(f"dt = {dt}: time step must be finite and > 0 s")
-        window = Window.create(int(n_sleepers), params.track.spacing, lead_sleepers, margin_sleepers, follow,
-                               int(elements_per_bay))
-        if not math.isfinite(float(start_position)):
-            raise ParameterError(f"start_position = {start_position}: must be finite")
+        dt = positive("dt", dt, unit="s")
+        window = Window.create(n_sleepers, params.track.spacing, lead_sleepers, margin_sleepers, follow,
+                               elements_per_bay)
+        start_position = finite("start_position", start_position)
         self.params = params
         self.dt = dt
         self.elements_per_bay = int(elements_per_bay)
@@ -429,8 +427,8 @@ class TrackSimulator:
         S = P.shape[0]
         pres = np.isfinite(P)
         any_p = pres.any(axis=1)
-        front = np.where(any_p, np.max(np.where(pres, P, -np.inf), axis=1), -np.inf)
-        rear = np.where(any_p, np.min(np.where(pres, P, np.inf), axis=1), np.inf)
+        front = np.where(any_p, np.max(np.where(pres, P, -np.inf), axis=1, initial=-np.inf), -np.inf)
+        rear = np.where(any_p, np.min(np.where(pres, P, np.inf), axis=1, initial=np.inf), np.inf)
         win = self._window
         s = 0
         while s < S:

@@ -106,10 +106,15 @@ class Window:
         Raises
         ------
         ParameterError
-            ``margin < 1``, ``lead < margin``, ``n_sleepers < lead + margin + 1``
+            A count that is not an integer, ``margin < 1``, ``lead < margin``, ``n_sleepers < lead + margin + 1``
             or ``< 4``, or a following window with ``elements_per_bay < 2``
             (the shift needs rail-only nodes at the window ends).
         """
+        counts = {"n_sleepers": n_sleepers, "lead_sleepers": lead_sleepers, "margin_sleepers": margin_sleepers,
+                  "elements_per_bay": elements_per_bay}
+        for name, value in counts.items():
+            if value is not None and (not isinstance(value, (int, np.integer)) or isinstance(value, bool)):
+                raise ParameterError(f"{name} = {value!r}: must be an integer")
         n = int(n_sleepers)
         margin = max(2, min(10, n // 6)) if margin_sleepers is None else int(margin_sleepers)
         lead = n // 3 if lead_sleepers is None else int(lead_sleepers)

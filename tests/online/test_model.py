@@ -1,12 +1,16 @@
 """The online input policy without middleware (clm_core.online)."""
 
+import re
+
 import numpy as np
 import pytest
 
+from clm_core.errors import ParameterError
 from clm_core.online import OnlineTrackModel, Rejected, WheelFrame
 from clm_core.params import load_model
 
 OFF = np.array([0.0, 3.0])
+
 
 
 @pytest.fixture(scope="module")
@@ -49,3 +53,25 @@ def test_unknown_id_refused_without_accept_new_wheels(params) -> None:  # type: 
     m.process(WheelFrame.of(2_000_000, [0], [30.06], [85e3]))
     r = m.process(WheelFrame.of(3_000_000, [0, 1], [30.09, 27.09], [85e3, 85e3]))
     assert r.wheel_deflection.shape == (2,) and np.all(r.wheel_deflection > 0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragment"),
+    [
+        ({"dt": "x"}, "dt = 'x': must be a real number"),
+        ({"dt": -1e-4}, "dt = -0.0001 s: must be > 0"),
+        ({"max_gap": "x"}, "max_gap = 'x': must be a real number"),
+        ({"max_gap": 0.0}, "max_gap = 0 s: must be > 0"),
+        ({"wheel_ids": [1.5]}, "wheel_ids = [1.5]: must be integers"),
+        ({"wheel_ids": "x"}, "wheel_ids = 'x': must be integers"),
+    ],
+)
+def test_model_refuses_bad_settings(kwargs: dict[str, object], fragment: str) -> None:
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        OnlineTrackModel(load_model(), **kwargs)  # type: ignore[arg-type]
+
+
+def test_model_with_a_fixed_wheel_set_builds() -> None:
+    """wheel_ids registered the wheels before their arrays existed (AttributeError '_pos')."""
+    model = OnlineTrackModel(load_model(), wheel_ids=[3, 7, 3])
+    assert model._slot == {3: 0, 7: 1}

@@ -8,6 +8,7 @@ frequency), convergence in dt, the moving window against a long fixed track
 
 from __future__ import annotations
 
+import re
 import tracemalloc
 from dataclasses import replace
 
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
+from clm_core.errors import InputError, ParameterError
 from clm_core.frequency import dynamic_solve
 from clm_core.io.history import HistoryRecorder, TimeHistory
 from clm_core.newmark import NewmarkLinear, _initial_acceleration
@@ -313,3 +315,47 @@ def test_reversing_vehicle_stays_bounded(mev: ModelParams) -> None:
         x = x_end
         assert sim.snapshot().soil_force.max() == pytest.approx(ref, rel=0.02)
     assert sim.snapshot().soil_force.sum() == pytest.approx(F0, rel=0.01)
+
+
+# ---------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragment"),
+    [
+        ({"dt": "x"}, "dt = 'x': must be a real number"),
+        ({"dt": float("inf")}, "dt = inf: must be finite"),
+        ({"dt": 0.0}, "dt = 0 s: must be > 0"),
+        ({"n_sleepers": float("nan")}, "n_sleepers = nan: must be an integer"),
+        ({"n_sleepers": "x"}, "n_sleepers = 'x': must be an integer"),
+        ({"n_sleepers": 31.5}, "n_sleepers = 31.5: must be an integer"),
+        ({"elements_per_bay": "x"}, "elements_per_bay = 'x': must be an integer"),
+        ({"lead_sleepers": 10.5}, "lead_sleepers = 10.5: must be an integer"),
+        ({"start_position": "x"}, "start_position = 'x': must be a real number"),
+        ({"start_position": float("nan")}, "start_position = nan: must be finite"),
+        ({"cache_size": "x"}, "cache_size = 'x': must be an integer >= 1"),
+        ({"cache_size": 0}, "cache_size = 0: must be an integer >= 1"),
+    ],
+)
+def test_simulator_refuses_bad_settings(kwargs: dict[str, object], fragment: str) -> None:
+    args: dict[str, object] = {"dt": 1e-4, "n_sleepers": 31} | kwargs
+    with pytest.raises(ParameterError, match=re.escape(fragment)):
+        TrackSimulator(load_model(), **args)  # type: ignore[arg-type]
+
+
+def test_step_and_initialize_refuse_text_loads() -> None:
+    sim = TrackSimulator(load_model(), 1e-4, n_sleepers=31)
+    for call in (sim.step, sim.initialize):
+        with pytest.raises(InputError, match=re.escape("positions and forces must be real numbers")):
+            call("x", "y")  # type: ignore[arg-type]
+
+
+def test_a_step_without_wheels_is_free_vibration() -> None:
+    """Zero wheels step like wheels that are all off the track (it raised a numpy reduction error)."""
+    a = TrackSimulator(load_model(), 1e-4, n_sleepers=31)
+    b = TrackSimulator(load_model(), 1e-4, n_sleepers=31)
+    a.initialize([0.0], [1e5])
+    b.initialize([0.0], [1e5])
+    a.step([], [])
+    b.step([np.nan], [0.0])
+    np.testing.assert_array_equal(a.state_vectors()[0], b.state_vectors()[0])
