@@ -321,11 +321,15 @@ def read_wheels_csv(path: str | Path) -> WheelTable:
     Raises
     ------
     InputError
-        The header is not a ``wheels.csv`` header (names the first bad column).
+        The file cannot be read, the header is not a ``wheels.csv`` header
+        (names the first bad column), or a row is not numbers.
     """
     p = Path(path)
-    with p.open(encoding="utf-8") as fh:
-        head = fh.readline().strip().split(",")
+    try:
+        with p.open(encoding="utf-8") as fh:
+            head = fh.readline().strip().split(",")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{p}: cannot read the wheels.csv ({exc})") from None
     if not head or head[0] != "t_s":
         raise InputError(f"{p}: not a wheels.csv (first column {head[0] if head else ''!r}, expected 't_s')")
     parsed: list[tuple[str, int]] = []
@@ -340,7 +344,10 @@ def read_wheels_csv(path: str | Path) -> WheelTable:
     W = max((i for _, i in parsed), default=-1) + 1
     with p.open(encoding="utf-8") as fh:
         lines = [ln for ln in fh.read().splitlines()[1:] if ln.strip()]
-    data = np.loadtxt(lines, delimiter=",", ndmin=2) if lines else np.zeros((0, len(head)))
+    try:
+        data = np.loadtxt(lines, delimiter=",", ndmin=2) if lines else np.zeros((0, len(head)))
+    except ValueError as exc:
+        raise InputError(f"{p}: a row of the wheels.csv is not {len(head)} numbers ({exc})") from None
     k = data.shape[0]
     cols = {s: np.full((k, W), np.nan) for s in _WHEEL_SYMBOLS}
     for c, (s, i) in enumerate(parsed, start=1):
@@ -614,9 +621,33 @@ class HistoryWriter:
                          profile_wheels=pw)
 
 
+#: The arrays of a ``history.npz``.
+_HISTORY_ARRAYS = (
+    "t", "first_sleeper", "spacing", "soil_force", "rail_deflection", "sleeper_displacement", "area_displacement",
+    "wheel_position", "wheel_force", "wheel_deflection", "wheel_velocity", "peak_sleeper_index",
+    "peak_soil_force", "peak_rail_deflection",
+)
+
+
 def load_history(path: str | Path) -> TimeHistory:
-    """Read a ``history.npz`` written by :class:`HistoryWriter`."""
-    with np.load(path) as z:
+    """Read a ``history.npz`` written by :class:`HistoryWriter`.
+
+    Raises
+    ------
+    InputError
+        The file cannot be read, is not an ``.npz`` archive of plain arrays,
+        or lacks an array of the history.
+    """
+    try:
+        z = np.load(path)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read a history.npz ({exc})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise InputError(f"{path}: not a history.npz (a single .npy array, not an .npz archive)")
+    with z:
+        missing = [k for k in _HISTORY_ARRAYS if k not in z.files]
+        if missing:
+            raise InputError(f"{path}: not a history.npz: no array {', '.join(missing)}")
         return TimeHistory(
             t=z["t"], first_sleeper=z["first_sleeper"], spacing=float(z["spacing"]),
             soil_force=z["soil_force"], rail_deflection=z["rail_deflection"],

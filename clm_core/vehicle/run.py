@@ -111,6 +111,8 @@ class VehicleRunSpec:
         for f in fields(self):
             value: Any = getattr(self, f.name)
             if f.name in ("train", "defects"):
+                if isinstance(value, str) or not isinstance(value, (tuple, list)):
+                    raise ParameterError(f"{f.name} = {value!r}: must be a sequence of strings (a tuple or list)")
                 value = tuple(str(v) for v in value)
             elif f.name == "n_sleepers":
                 value = None if value is None else settings.N_SLEEPERS.check(value, "n_sleepers")

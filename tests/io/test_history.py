@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -167,3 +168,21 @@ def test_read_wheels_csv_reads_the_earlier_layouts(tmp_path: Path) -> None:
         read_wheels_csv(bad)
     with (tmp_path / "x.csv").open("w") as fh, pytest.raises(InputError, match="unknown column symbol"):
         append_wheel_rows(fh, [0.0], 1, {"F": [[1.0]]})
+
+
+def test_readers_refuse_missing_and_foreign_files(tmp_path: Path) -> None:
+    from clm_core.io.history import read_wheels_csv
+
+    (tmp_path / "rows.csv").write_text("t_s,x0_m\n0.0,abc\n", encoding="utf-8")
+    (tmp_path / "pickled.npz").write_text("not an archive", encoding="utf-8")
+    np.savez(tmp_path / "other.npz", t=np.zeros(3))
+    np.save(tmp_path / "single.npy", np.zeros(3))
+    with pytest.raises(InputError, match=re.escape("cannot read the wheels.csv")):
+        read_wheels_csv(tmp_path / "none.csv")
+    with pytest.raises(InputError, match=re.escape("a row of the wheels.csv is not 2 numbers")):
+        read_wheels_csv(tmp_path / "rows.csv")
+    for name, fragment in [("none.npz", "cannot read a history.npz"), ("pickled.npz", "cannot read a history.npz"),
+                           ("other.npz", "not a history.npz: no array first_sleeper"),
+                           ("single.npy", "not a history.npz (a single .npy array")]:
+        with pytest.raises(InputError, match=re.escape(fragment)):
+            load_history(tmp_path / name)
