@@ -29,10 +29,13 @@ def decay_pulse(t: ArrayLike, A: float = 1.0, t0: float = 0.05, td: float = 0.00
     Raises
     ------
     ParameterError
-        ``A``, ``t0`` or a time not finite, or ``td`` not > 0.
+        ``A``, ``t0`` or a time not a finite number, or ``td`` not > 0.
     """
     A, t0, td = _pulse(A, t0, td)
-    t = np.asarray(t, dtype=float)
+    try:
+        t = np.asarray(t, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"t = {t!r}: times must be real numbers [s]") from None
     if not np.all(np.isfinite(t)):
         raise ParameterError(f"t = {t[~np.isfinite(t)][0]} s: times must be finite")
     out = np.zeros_like(t)

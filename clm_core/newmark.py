@@ -38,7 +38,8 @@ class NewmarkLinear:
     Raises
     ------
     ParameterError
-        ``dt`` not finite and > 0, or M, C, K not square of one size.
+        ``dt`` not finite and > 0, M, C, K not square of one size, or
+        K + 2/dt C + 4/dt^2 M singular.
     """
 
     def __init__(self, M: sp.spmatrix, C: sp.spmatrix, K: sp.spmatrix, dt: float) -> None:
@@ -50,7 +51,13 @@ class NewmarkLinear:
             raise ParameterError(f"M, C, K: shapes {shapes}: must be square of one size")
         self.dt = dt
         a0, a1 = 4.0 / dt**2, 2.0 / dt
-        self._lu = spla.splu(sp.csc_matrix(self.K + a1 * self.C + a0 * self.M))
+        try:
+            self._lu = spla.splu(sp.csc_matrix(self.K + a1 * self.C + a0 * self.M))
+        except RuntimeError:
+            raise ParameterError(
+                f"M, C, K with dt = {dt:g} s: K + 2/dt C + 4/dt^2 M is singular (a DOF without mass, damping "
+                "and stiffness, or non-finite entries)"
+            ) from None
         self.u = np.zeros(n)
         self.v = np.zeros(n)
         self.a = np.zeros(n)

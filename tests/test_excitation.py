@@ -38,3 +38,8 @@ def test_nonfinite_times_and_frequencies_refused() -> None:
         decay_pulse([0.0, np.nan])
     with pytest.raises(ParameterError, match=re.escape("f = inf Hz: frequencies must be finite")):
         decay_pulse_spectrum([1.0, np.inf])
+
+
+def test_text_times_refused() -> None:
+    with pytest.raises(ParameterError, match=re.escape("t = 'x': times must be real numbers")):
+        decay_pulse("x")

@@ -40,3 +40,9 @@ def test_matrices_of_different_sizes_refused() -> None:
 def test_run_refuses_bad_steps_and_forces(force: np.ndarray, n_steps: int, fragment: str) -> None:
     with pytest.raises(ParameterError, match=re.escape(fragment)):
         NewmarkLinear(M, C, K, 0.01).run(force, n_steps)
+
+
+@pytest.mark.parametrize("scale", [0.0, np.nan])
+def test_singular_or_nonfinite_matrices_refused(scale: float) -> None:
+    with pytest.raises(ParameterError, match=re.escape("K + 2/dt C + 4/dt^2 M is singular")):
+        NewmarkLinear(M * scale, C * scale, K * scale, 0.01)
