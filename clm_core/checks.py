@@ -50,12 +50,41 @@ def nonnegative(name: str, value: Any, error: type[ClmError] = ParameterError, u
     return v
 
 
+def integer(
+    name: str,
+    value: Any,
+    minimum: int | None = None,
+    maximum: int | None = None,
+    error: type[ClmError] = ParameterError,
+    hint: str = "",
+) -> int:
+    """``value`` as an int in ``minimum..maximum`` (either bound optional).
+
+    A bool or a float (even 3.0) is refused: a count or an index is never
+    rounded. ``error``: as in :func:`finite`; ``hint``: what the range
+    means, shown in parentheses (``n_out = 0: must be an integer in 1..21
+    (sleepers from the centre of 41)``).
+    """
+    n: int | None = None
+    if not isinstance(value, bool):
+        try:
+            n = operator.index(value)
+        except TypeError:
+            pass
+    if n is None or (minimum is not None and n < minimum) or (maximum is not None and n > maximum):
+        if minimum is not None and maximum is not None:
+            rule = f" in {minimum}..{maximum}"
+        elif minimum is not None:
+            rule = f" >= {minimum}"
+        else:
+            rule = "" if maximum is None else f" <= {maximum}"
+        raise error(f"{name} = {value!r}: must be an integer{rule}{f' ({hint})' if hint else ''}")
+    return n
+
+
 def odd_count(name: str, value: Any, minimum: int = 1) -> int:
     """``value`` as an odd integer >= ``minimum`` (a chain of 2n + 1 areas, loaded one at the centre)."""
-    try:
-        n = operator.index(value)
-    except TypeError:
-        raise ParameterError(f"{name} = {value!r}: must be an integer") from None
+    n = integer(name, value)
     if n < minimum or n % 2 == 0:
         raise ParameterError(f"{name} = {n}: must be odd and >= {minimum} (2n + 1 areas, the loaded one at the centre)")
     return n

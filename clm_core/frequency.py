@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike
 from scipy.signal import argrelmax
 
 from clm_core.arrays import Array, CArray
-from clm_core.checks import finite, positive
+from clm_core.checks import finite, integer, positive
 from clm_core.errors import ParameterError
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
@@ -76,10 +76,7 @@ def _outputs(system: TrackSystem, n_out: int) -> int:
     """The sleeper of the unit force (the centre one) after checking ``n_out``, the receptances wanted."""
     c = centre_sleeper(system)
     available = system.n_sleepers - c
-    if not isinstance(n_out, (int, np.integer)) or not 1 <= n_out <= available:
-        raise ParameterError(
-            f"n_out = {n_out!r}: must be an integer in 1..{available} (sleepers from the centre of {system.n_sleepers})"
-        )
+    integer("n_out", n_out, 1, available, hint=f"sleepers from the centre of {system.n_sleepers}")
     return c
 
 

@@ -19,7 +19,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from clm_core.arrays import Array
-from clm_core.checks import positive
+from clm_core.checks import integer, positive
 from clm_core.errors import ParameterError
 
 
@@ -94,8 +94,7 @@ class NewmarkLinear:
             shape (n_steps + 1, n).
         """
         n = self.K.shape[0]
-        if not isinstance(n_steps, (int, np.integer)) or n_steps < 0:
-            raise ParameterError(f"n_steps = {n_steps!r}: must be an integer >= 0")
+        n_steps = integer("n_steps", n_steps, 0)
         if isinstance(force, np.ndarray) and force.shape != (n_steps + 1, n):
             raise ParameterError(f"force: shape {force.shape}: must be (n_steps + 1, n) = ({n_steps + 1}, {n})")
         t: Array = np.arange(n_steps + 1, dtype=np.float64) * self.dt

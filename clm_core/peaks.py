@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from clm_core.checks import finite, positive
+from clm_core.checks import finite, integer, positive
 from clm_core.errors import InputError, ParameterError
 
 #: Bays excluded at each end of a run (start-up transient, sleepers not fully passed).
@@ -77,10 +77,7 @@ class PeakWindow:
                 object.__setattr__(self, name, float(value))
             except (TypeError, ValueError):
                 raise ParameterError(f"{name} = {value!r}: must be a real number [m]") from None
-        bays = self.margin_bays
-        if not isinstance(bays, (int, np.integer)) or isinstance(bays, bool) or bays < 0:
-            raise ParameterError(f"margin_bays = {bays!r}: must be an integer >= 0")
-        object.__setattr__(self, "margin_bays", int(bays))
+        object.__setattr__(self, "margin_bays", integer("margin_bays", self.margin_bays, 0))
 
     @property
     def x_from(self) -> float:

@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array, IntArray
-from clm_core.checks import positive
+from clm_core.checks import integer, positive
 from clm_core.errors import InputError, ParameterError, StabilityError
 from clm_core.params import PER_SLEEPER_NAMES, ModelParams
 
@@ -366,8 +366,7 @@ def assemble(
     if overhang_elements is not None:
         counts["overhang_elements"] = overhang_elements
     for name, value in counts.items():
-        if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
-            raise ParameterError(f"{name} = {value!r}: must be an integer")
+        integer(name, value)
     if n_sleepers < 2:
         raise ParameterError(f"n_sleepers = {n_sleepers}: need at least 2")
     if elements_per_bay < 1:

@@ -29,7 +29,6 @@ n grows (Eq. 17-18; the end areas make it approximate for finite n).
 
 from __future__ import annotations
 
-import operator
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal, TypeAlias, overload
@@ -40,7 +39,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import lapack
 
 from clm_core.arrays import Array, CArray
-from clm_core.checks import chain_min_eigenvalue, finite, odd_count, positive
+from clm_core.checks import chain_min_eigenvalue, finite, integer, odd_count, positive
 from clm_core.errors import ParameterError
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
@@ -97,12 +96,7 @@ def _loaded_area(loaded: int | None, n_areas: int) -> int:
     """The loaded area's index: ``loaded``, or the centre one if None."""
     if loaded is None:
         return n_areas // 2
-    try:
-        c = operator.index(loaded)
-    except TypeError:
-        raise ParameterError(f"loaded = {loaded!r}: must be an integer area index 0..{n_areas - 1}") from None
-    if not 0 <= c < n_areas:
-        raise ParameterError(f"loaded = {c}: must be an area index 0..{n_areas - 1}")
+    c = integer("loaded", loaded, 0, n_areas - 1, hint="an area index")
     return c
 
 
@@ -406,10 +400,7 @@ class ChainTimeResponse:
             ``n_neighbours`` not an integer in 0..n_areas // 2.
         """
         c = self.x.shape[1] // 2
-        if not isinstance(n_neighbours, (int, np.integer)) or not 0 <= n_neighbours <= c:
-            raise ParameterError(
-                f"n_neighbours = {n_neighbours!r}: must be an integer in 0..{c} (areas past the centre)"
-            )
+        n_neighbours = integer("n_neighbours", n_neighbours, 0, c, hint="areas past the centre")
         amps, times = [], []
         for k in range(n_neighbours + 1):
             col = self.x[:, c + k]

@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from clm_core.arrays import Array, IntArray
+from clm_core.checks import integer
 from clm_core.errors import ParameterError, StabilityError
 from clm_core.params import ModelParams
 from clm_core.solver import _kernels as kern
@@ -325,8 +326,7 @@ class OperatorCache:
         sleeper_values: SleeperValues,
         size: int = 64,
     ) -> None:
-        if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 1:
-            raise ParameterError(f"cache_size = {size!r}: must be an integer >= 1")
+        integer("cache_size", size, 1)
         self.params = params
         self.dt = float(dt)
         self.window = window

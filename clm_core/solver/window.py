@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array, IntArray
+from clm_core.checks import integer
 from clm_core.errors import InputError, ParameterError
 
 #: Side of the clamped ghost bay: ahead ('forward'), behind ('backward'), none ('free', a fixed window).
@@ -113,8 +114,8 @@ class Window:
         counts = {"n_sleepers": n_sleepers, "lead_sleepers": lead_sleepers, "margin_sleepers": margin_sleepers,
                   "elements_per_bay": elements_per_bay}
         for name, value in counts.items():
-            if value is not None and (not isinstance(value, (int, np.integer)) or isinstance(value, bool)):
-                raise ParameterError(f"{name} = {value!r}: must be an integer")
+            if value is not None:
+                integer(name, value)
         n = int(n_sleepers)
         margin = max(2, min(10, n // 6)) if margin_sleepers is None else int(margin_sleepers)
         lead = n // 3 if lead_sleepers is None else int(lead_sleepers)
