@@ -55,6 +55,7 @@ import numpy as np
 from scipy import sparse, special
 
 from clm_core.arrays import Array, CArray
+from clm_core.checks import nonnegative, odd_count, positive
 from clm_core.errors import ParameterError
 from clm_core.halfspace.green import KernelEngine, RadialKernel, lagrange_weights
 from clm_core.profile import SoilProfile
@@ -152,12 +153,9 @@ class RowGeometry:
     n_gauss: int = 2
 
     def __post_init__(self) -> None:
-        if self.n_areas < 1 or self.n_areas % 2 == 0:
-            raise ParameterError(f"n_areas = {self.n_areas}: must be odd and >= 1 (2n + 1 areas)")
+        odd_count("n_areas", self.n_areas)
         for name in ("spacing", "width", "length"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ParameterError(f"{name} = {v}: must be > 0 [m]")
+            positive(name, getattr(self, name), unit="m")
         if self.n_areas > 1 and self.spacing < self.width:
             raise ParameterError(
                 f"spacing = {self.spacing} m: must be >= width = {self.width} m (areas may not overlap)"
@@ -253,8 +251,7 @@ class RowModel:
     def __init__(
         self, profile: SoilProfile, geometry: RowGeometry, f_max: float = 150.0, dr: float | None = None
     ) -> None:
-        if not (math.isfinite(f_max) and f_max >= 0):
-            raise ParameterError(f"f_max = {f_max}: must be >= 0 [Hz]")
+        nonnegative("f_max", f_max, unit="Hz")
         self.profile = profile
         self.geometry = geometry
         self.f_max = f_max

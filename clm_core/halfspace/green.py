@@ -62,6 +62,7 @@ from numpy.typing import NDArray
 from scipy import sparse, special
 
 from clm_core.arrays import Array, CArray
+from clm_core.checks import nonnegative, positive
 from clm_core.errors import ParameterError
 from clm_core.halfspace.bessel import j0_outer
 from clm_core.profile import Layer, SoilProfile
@@ -396,12 +397,8 @@ class KernelEngine:
         resolution: float = 1.0,
         k_factor: float = 12.0,
     ) -> None:
-        if not (r_max > 0 and math.isfinite(r_max)):
-            raise ParameterError(f"r_max = {r_max}: must be > 0 [m]")
-        if not (dr > 0 and math.isfinite(dr)):
-            raise ParameterError(f"dr = {dr}: must be > 0 [m]")
-        if not (f_max >= 0 and math.isfinite(f_max)):
-            raise ParameterError(f"f_max = {f_max}: must be >= 0 [Hz]")
+        r_max, dr = positive("r_max", r_max, unit="m"), positive("dr", dr, unit="m")
+        f_max = nonnegative("f_max", f_max, unit="Hz")
         self.profile = profile
         self.dr = float(dr)
         n = int(math.ceil(r_max / dr)) + 4

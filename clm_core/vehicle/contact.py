@@ -40,6 +40,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array
+from clm_core.checks import positive
 from clm_core.errors import InputError, ParameterError
 
 
@@ -77,10 +78,10 @@ def hertz_constant(
     float
         C_H [N/m^1.5]; about 0.9e11 for R_w = 0.46 m on a UIC60 rail.
     """
-    Rw = _pos("wheel_radius", wheel_radius)
+    Rw = positive("wheel_radius", wheel_radius, unit="m")
     if method == "hertz":
-        Rr = _pos("rail_head_radius", rail_head_radius)
-        Ee = _pos("E", E)
+        Rr = positive("rail_head_radius", rail_head_radius, unit="m")
+        Ee = positive("E", E, unit="Pa")
         if not (-1.0 < nu < 0.5):
             raise ParameterError(f"nu = {nu}: Poisson's ratio must lie in (-1, 0.5)")
         Estar = Ee / (2.0 * (1.0 - nu**2))
@@ -89,13 +90,6 @@ def hertz_constant(
         G = 3.86e-8 * Rw ** (-0.115)
         return float(G ** (-1.5))
     raise ParameterError(f"method = {method!r}: one of 'hertz', 'zhai'")
-
-
-def _pos(name: str, v: float) -> float:
-    v = float(v)
-    if not (math.isfinite(v) and v > 0):
-        raise ParameterError(f"{name} = {v}: must be a finite value > 0")
-    return v
 
 
 def hertz_force(delta: Array, ch: Array | float) -> Array:

@@ -201,10 +201,8 @@ def random_profile(
         repeat over the run.
     """
     lo, hi = _check_band(band)
-    if not (math.isfinite(length) and length > 0):
-        raise ParameterError(f"profile length = {length}: must be a finite value > 0 m")
-    if not math.isfinite(x_start):
-        raise ParameterError(f"profile x_start = {x_start}: must be finite")
+    _posv("profile length", length, unit="m")
+    _fin("profile x_start", x_start)
     h = lo / 20.0 if dx is None else float(dx)
     if not (math.isfinite(h) and 0 < h <= lo / 4):
         raise ParameterError(f"dx = {h:g} m: must be in (0, lambda_min / 4 = {lo / 4:g}] m")

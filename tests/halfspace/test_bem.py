@@ -140,6 +140,12 @@ def test_geometry_rules() -> None:
         RowGeometry(nx=3)
     with pytest.raises(ParameterError, match="overlap"):
         RowGeometry(spacing=0.2)
+    with pytest.raises(ParameterError, match=r"^spacing = -1 m: must be > 0$"):
+        RowGeometry(spacing=-1.0)
+    with pytest.raises(ParameterError, match=r"^width = nan: must be finite"):
+        RowGeometry(width=math.nan)
+    with pytest.raises(ParameterError, match=r"^f_max = -1 Hz: must be >= 0$"):
+        RowModel(load_profile("medium"), RowGeometry(n_areas=1, nx=2, ny=4), f_max=-1.0)
     model = RowModel(load_profile("medium"), RowGeometry(n_areas=1, nx=2, ny=4), f_max=10.0)
     with pytest.raises(ParameterError, match="f_max"):
         model.sweep([0.0, 20.0])

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import special
 
+from clm_core.errors import ParameterError
 from clm_core.halfspace.bessel import j0_complex
 from clm_core.halfspace.green import (
     KernelEngine,
@@ -44,6 +45,21 @@ def test_point_load_matches_wong_table(a: float) -> None:
     ker = radial_kernel(unit_halfspace(), a, 1.5, 0.005)
     val = complex(ker(np.array([1.0]))[0])
     assert abs(val - WONG[a]) < 0.003, (a, val)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"r_max": 0.0}, r"^r_max = 0 m: must be > 0$"),
+        ({"dr": math.inf}, r"^dr = inf: must be finite"),
+        ({"f_max": -5.0}, r"^f_max = -5 Hz: must be >= 0$"),
+    ],
+)
+def test_kernel_engine_refuses_a_bad_grid(kwargs: dict[str, float], message: str) -> None:
+    grid = {"r_max": 10.0, "dr": 0.5, "f_max": 50.0, **kwargs}
+    with pytest.raises(ParameterError, match=message):
+        KernelEngine(SoilProfile((Layer(None, 129e6, 1600.0, 0.3, beta=0.0004),)),
+                     grid["r_max"], grid["dr"], grid["f_max"])
 
 
 def test_point_load_static_is_boussinesq() -> None:

@@ -111,6 +111,19 @@ def test_invalid_vehicle_parameters_are_refused() -> None:
 # ------------------------------------------------------------------ contact
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"wheel_radius": 0.0}, r"^wheel_radius = 0 m: must be > 0$"),
+        ({"wheel_radius": 0.46, "E": math.nan}, r"^E = nan: must be finite"),
+        ({"wheel_radius": 0.46, "rail_head_radius": -0.3}, r"^rail_head_radius = -0.3 m: must be > 0$"),
+    ],
+)
+def test_hertz_constant_refuses_bad_radii_and_modulus(kwargs: dict[str, float], message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        hertz_constant(**kwargs)
+
+
 def test_hertz_constant_magnitude() -> None:
     ch = hertz_constant(0.46)  # UIC60 head radius 0.3 m
     assert 0.8e11 < ch < 1.2e11
