@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array, IntArray
-from clm_core.checks import integer, positive
+from clm_core.checks import finite, integer, positive
 from clm_core.errors import InputError, ParameterError, StabilityError
 from clm_core.params import PER_SLEEPER_NAMES, ModelParams
 
@@ -84,7 +84,9 @@ def beam_element(EI: float, m: float, L: float) -> tuple[Array, Array]:
 
 
 def hermite(xi: Array, L: float) -> Array:
-    """Cubic Hermite shape functions at local coordinates ``xi`` in [0, 1]; shape (len(xi), 4)."""
+    """Cubic Hermite shape functions at local coordinates ``xi`` in [0, 1] of an element of length ``L`` [m] > 0;
+    shape (len(xi), 4)."""
+    L = positive("element length L", L, unit="m")
     xi = np.asarray(xi, dtype=float)
     return np.stack(
         [1 - 3 * xi**2 + 2 * xi**3, L * (xi - 2 * xi**2 + xi**3), 3 * xi**2 - 2 * xi**3, L * (-(xi**2) + xi**3)],
@@ -301,6 +303,7 @@ class TrackSystem:
         rail deflection under the load. Constrained DOFs get weight 0.
         """
         xs = self.node_x
+        x = finite("load position x", x, InputError)
         if not xs[0] <= x <= xs[-1]:
             raise InputError(f"load position x = {x:g} m: outside the rail [{xs[0]:g}, {xs[-1]:g}] m")
         e = int(np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2))

@@ -8,7 +8,7 @@ import pytest
 from clm_core.errors import ParameterError
 from clm_core.frequency import dynamic_solve, receptance, receptance_from_pulse
 from clm_core.params import ModelParams, load_model
-from clm_core.track import assemble, beam_element
+from clm_core.track import assemble, beam_element, hermite
 
 
 def _boef(p: ModelParams) -> tuple[float, float]:
@@ -105,6 +105,12 @@ def test_point_load_outside_rail_refused() -> None:
 
     with pytest.raises(InputError, match="outside the rail"):
         s.point_load(100.0)
+    with pytest.raises(InputError, match=r"^load position x = nan: must be finite"):
+        s.point_load(float("nan"))
+    with pytest.raises(InputError, match=r"^load position x = 'x': must be a real number$"):
+        s.point_load("x")  # type: ignore[arg-type]
+    with pytest.raises(ParameterError, match=r"^element length L = 0 m: must be > 0$"):
+        hermite(np.array([0.5]), 0.0)
 
 
 @pytest.mark.parametrize(

@@ -92,6 +92,7 @@ from numpy.lib.format import open_memmap, write_array
 from numpy.typing import ArrayLike
 
 from clm_core.arrays import Array, IntArray
+from clm_core.checks import integer
 from clm_core.errors import InputError
 
 if TYPE_CHECKING:
@@ -211,6 +212,7 @@ def write_npz(path: str | Path, arrays: Mapping[str, Any] | Iterable[tuple[str, 
 
 def wheels_csv_header(n_wheels: int) -> str:
     """Header line of ``wheels.csv`` for ``n_wheels`` wheels (module docstring), without newline."""
+    n_wheels = integer("n_wheels", n_wheels, 0)
     return ",".join(["t_s"] + [f"{s}{i}_{u}" for i in range(n_wheels) for s, u, _ in WHEEL_CSV_COLUMNS])
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clm_core.errors import InputError
+from clm_core.errors import InputError, ParameterError
 from clm_core.io.history import (
     PEAKS_CSV_COLUMNS,
     SLEEPER_CSV_COLUMNS,
@@ -186,3 +186,10 @@ def test_readers_refuse_missing_and_foreign_files(tmp_path: Path) -> None:
                            ("single.npy", "not a history.npz (a single .npy array")]:
         with pytest.raises(InputError, match=re.escape(fragment)):
             load_history(tmp_path / name)
+
+
+@pytest.mark.parametrize("n", [-1, 2.0, "2"])
+def test_wheels_csv_header_refuses_a_bad_wheel_count(n: object) -> None:
+    with pytest.raises(ParameterError, match=r"^n_wheels = .*: must be an integer >= 0$"):
+        wheels_csv_header(n)  # type: ignore[arg-type]
+    assert wheels_csv_header(0) == "t_s"
