@@ -34,7 +34,7 @@ from clm_core.calibration.receptance import DEFAULT_FIT, TrackFit, fit_receptanc
 from clm_core.calibration.signals import Recording
 from clm_core.calibration.spectra import TransferData, WindowSpec, transfer_functions
 from clm_core.errors import ParameterError
-from clm_core.io.history import dumps_json
+from clm_core.io.files import dumps_json
 from clm_core.params import ModelParams, SoilParams, load_model, load_params_file
 from clm_core.soil.chain import chain_response
 from clm_core.track import assemble
@@ -251,7 +251,7 @@ class CalibrationResult:
         return out
 
     def summary_json(self) -> str:
-        """:meth:`summary` as strict JSON text (:func:`clm_core.io.history.dumps_json`)."""
+        """:meth:`summary` as strict JSON text (:func:`clm_core.io.files.dumps_json`)."""
         return dumps_json(self.summary())
 
 

@@ -33,7 +33,7 @@ import yaml
 
 from clm_core.calibration.api import CalibrationResult
 from clm_core.calibration.impact import SoilFit
-from clm_core.io.history import write_json
+from clm_core.io.files import write_json
 
 
 def _fmt(x: float) -> str:

@@ -11,7 +11,7 @@
 - :func:`quantity`: numbers on the final lines, with units and 4 significant
   digits (``40.99 kN``, ``1.443 mm``).
 
-JSON files are written by :func:`clm_core.io.history.write_json` (the one JSON helper).
+JSON files are written by :func:`clm_core.io.files.write_json` (the one JSON helper).
 """
 
 from __future__ import annotations

@@ -68,7 +68,7 @@ def receptance_report(
     import numpy as np
 
     from clm_core.frequency import receptance
-    from clm_core.io.history import write_json
+    from clm_core.io.files import write_json
     from clm_core.io.plots import plot_receptance
     from clm_core.track import assemble
 

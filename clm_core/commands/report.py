@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     """
     from clm_core.commands.receptance import receptance_report
     from clm_core.commands.soil_chain import eq21_geometry, shear_wave_speed, soil_chain_report, soil_from_args
-    from clm_core.io.history import write_json
+    from clm_core.io.files import write_json
     from clm_core.io.report_index import write_index
     from clm_core.params import SoilModel, list_presets, load_model, soil_track
     from clm_core.progress import Progress

@@ -124,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
 def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: float) -> int:
     import numpy as np
 
-    from clm_core.io.history import HistoryWriter, write_json
+    from clm_core.io.files import write_json
+    from clm_core.io.history import HistoryWriter
     from clm_core.io.plots import plot_run
     from clm_core.peaks import BlockPeaks, masked_max, peak_window
     from clm_core.progress import Progress

@@ -33,7 +33,7 @@ import yaml
 from clm_core.commands._common import add_command, check_output, output_dir, quantity, remove_bag
 from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.errors import ParameterError, PresetError
-from clm_core.io.history import write_json
+from clm_core.io.files import write_json
 
 
 def register(subparsers: Any) -> None:

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from clm_core.errors import InputError
-from clm_core.io.history import dumps_json
+from clm_core.io.files import dumps_json
 
 
 class ResultStore:

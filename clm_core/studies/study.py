@@ -31,7 +31,7 @@ from typing import Any
 
 from clm_core import __version__
 from clm_core.errors import ClmError, InputError
-from clm_core.io.history import write_json
+from clm_core.io.files import write_json
 from clm_core.studies.engine import Engine, EngineInfo, Task
 from clm_core.studies.runner import RUN_COLUMNS, SUMMARY_METRICS, calibrate_bag, run_case, warm_up
 from clm_core.studies.spec import StudySpec, column_text, simulate_argv

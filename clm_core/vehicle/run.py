@@ -313,7 +313,8 @@ def run_vehicle(
         (simulated / wall time of the stepping), ``peak_exclusion`` (which
         part of the run the peaks come from) and ``settings``.
     """
-    from clm_core.io.history import write_coupled_history, write_json
+    from clm_core.io.files import write_json
+    from clm_core.io.history import write_coupled_history
     from clm_core.io.plots import plot_vehicle_run
 
     run, res, summary = simulate_vehicle(spec, params, progress=progress)

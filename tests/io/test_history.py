@@ -1,4 +1,4 @@
-"""History files (clm_core.io.history): one writer per format, one wheels.csv layout, strict JSON."""
+"""History files (clm_core.io.history): one writer per format, one wheels.csv layout."""
 
 from __future__ import annotations
 
@@ -17,14 +17,10 @@ from clm_core.io.history import (
     HistoryRecorder,
     HistoryWriter,
     append_wheel_rows,
-    dumps_json,
     load_history,
     read_wheels_csv,
-    to_jsonable,
     wheels_csv_header,
     write_coupled_history,
-    write_json,
-    write_npz,
 )
 from clm_core.params import load_model
 from clm_core.solver import TrackSimulator
@@ -33,37 +29,6 @@ from clm_core.solver import TrackSimulator
 @pytest.fixture(scope="module")
 def mev():  # type: ignore[no-untyped-def]
     return load_model("mevergnies", "mevergnies", "clm")
-
-
-def test_json_is_strict_and_plain(tmp_path: Path) -> None:
-    data = {"a": np.float64(1.5), "b": np.arange(3), "nan": float("nan"), "inf": np.inf, 3: (np.int32(4), True),
-            "nested": [{"x": np.array([1.0, np.nan])}], "path": tmp_path, "none": None, "flag": np.bool_(False)}
-    plain = to_jsonable(data)
-    assert plain == {"a": 1.5, "b": [0, 1, 2], "nan": None, "inf": None, "3": [4, True],
-                     "nested": [{"x": [1.0, None]}], "path": str(tmp_path), "none": None, "flag": False}
-    assert type(plain["b"][0]) is int and type(plain["flag"]) is bool
-    p = write_json(tmp_path / "s.json", data)
-    text = p.read_text()
-    assert text.endswith("}\n") and "NaN" not in text and "Infinity" not in text
-    # any strict reader accepts it
-    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard constant {c}")) == plain
-    assert dumps_json([1, 2], indent=None) == "[1, 2]"
-
-
-def test_npz_writer_streams_memory_maps_and_compresses(tmp_path: Path) -> None:
-    from numpy.lib.format import open_memmap
-
-    mm = open_memmap(tmp_path / "m.npy", mode="w+", dtype=np.float64, shape=(1000, 7))
-    mm[:] = np.arange(7000.0).reshape(1000, 7)
-    arrays = {"m": mm[:600], "s": np.array(0.25), "txt": np.array('{"k": 1}'), "i": np.arange(5, dtype=np.int64)}
-    write_npz(tmp_path / "a.npz", arrays)
-    write_npz(tmp_path / "b.npz", list(arrays.items()), compress=True)
-    for name in ("a.npz", "b.npz"):
-        with np.load(tmp_path / name) as z:
-            assert z.files == ["m", "s", "txt", "i"]
-            np.testing.assert_array_equal(z["m"], np.arange(4200.0).reshape(600, 7))
-            assert float(z["s"]) == 0.25 and json.loads(str(z["txt"])) == {"k": 1} and z["i"].dtype == np.int64
-    assert (tmp_path / "b.npz").stat().st_size < 0.5 * (tmp_path / "a.npz").stat().st_size
 
 
 def _moving_run(out: Path, params, csv: bool = True):  # type: ignore[no-untyped-def]

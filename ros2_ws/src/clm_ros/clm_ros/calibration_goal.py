@@ -19,7 +19,7 @@ from typing import Any
 import yaml
 
 from clm_core.calibration import CalibrationError, CalibrationOptions, CalibrationResult, SoilFit
-from clm_core.io.history import dumps_json
+from clm_core.io.files import dumps_json
 from clm_ros.calibration_push import PushOutcome, one_line
 
 #: Terminal states of a calibration (the action's SUCCEEDED, ABORTED, CANCELED).

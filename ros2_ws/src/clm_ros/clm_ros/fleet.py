@@ -56,7 +56,7 @@ from typing import Any, cast
 import numpy as np
 
 from clm_core import settings
-from clm_core.io.history import write_json
+from clm_core.io.files import write_json
 from clm_ros.errors import ClmRosError
 from clm_ros.launcher import POLL, _number, _stop
 from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from clm_core.io.history import write_json
+from clm_core.io.files import write_json
 from clm_core.io.report_index import write_index
 from clm_core.peaks import masked_max, peak_window
 from clm_core.progress import Progress
