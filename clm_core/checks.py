@@ -82,9 +82,14 @@ def integer(
     return n
 
 
-def odd_count(name: str, value: Any, minimum: int = 1) -> int:
-    """``value`` as an odd integer >= ``minimum`` (a chain of 2n + 1 areas, loaded one at the centre)."""
-    n = integer(name, value)
+#: Most areas of one chain (:func:`odd_count`): 100 001 areas of 0.6 m are 60 km of line; a larger count is an input
+#: mistake, and its matrices would not fit in memory.
+MAX_AREAS = 100_001
+
+
+def odd_count(name: str, value: Any, minimum: int = 1, maximum: int = MAX_AREAS) -> int:
+    """``value`` as an odd integer in ``minimum..maximum`` (a chain of 2n + 1 areas, loaded one at the centre)."""
+    n = integer(name, value, None, maximum, hint="a chain of 2n + 1 areas")
     if n < minimum or n % 2 == 0:
         raise ParameterError(f"{name} = {n}: must be odd and >= {minimum} (2n + 1 areas, the loaded one at the centre)")
     return n

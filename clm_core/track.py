@@ -33,6 +33,9 @@ from clm_core.errors import InputError, ParameterError, StabilityError
 from clm_core.params import PER_SLEEPER_NAMES, ModelParams
 
 RailEnds = Literal["free", "pinned", "clamped"]
+#: Most degrees of freedom of one assembled model (:func:`assemble`): about 330 000 sleepers, 200 km of line at
+#: 0.6 m; a larger model is an input mistake and would not fit in memory.
+MAX_DOFS = 2_000_000
 
 
 def beam_element(EI: float, m: float, L: float) -> tuple[Array, Array]:
@@ -323,6 +326,25 @@ class TrackSystem:
         return ab
 
 
+def check_size(n_sleepers: int, elements_per_bay: int, overhang_elements: int) -> None:
+    """Refuse a model of more than :data:`MAX_DOFS` degrees of freedom before anything is allocated.
+
+    Raises
+    ------
+    ParameterError
+        The rail, sleepers and areas of ``n_sleepers`` sleepers with
+        ``elements_per_bay`` rail elements per bay and ``overhang_elements`` at
+        each end have more than :data:`MAX_DOFS` degrees of freedom.
+    """
+    n_dof = 2 * (2 * overhang_elements + (n_sleepers - 1) * elements_per_bay + 1) + 2 * n_sleepers
+    if n_dof > MAX_DOFS:
+        raise ParameterError(
+            f"n_sleepers = {n_sleepers}, elements_per_bay = {elements_per_bay}: about {n_dof} degrees of freedom, "
+            f"more than {MAX_DOFS} (such a model does not fit in memory; a moving-load window needs a few hundred "
+            "sleepers)"
+        )
+
+
 def assemble(
     params: ModelParams,
     n_sleepers: int,
@@ -380,6 +402,8 @@ def assemble(
     oh = max(1, ne // 2) if overhang_elements is None else int(overhang_elements)
     if oh < 0:
         raise ParameterError(f"overhang_elements = {oh}: must be >= 0")
+    check_size(n_sleepers, ne, oh)
+    n_el = 2 * oh + (n_sleepers - 1) * ne  # rail elements: overhang, bays, overhang
     d = params.track.spacing
     gidx = np.arange(first_sleeper, first_sleeper + n_sleepers, dtype=np.int64)
     sx = gidx * d
@@ -389,7 +413,6 @@ def assemble(
 
     # rail nodes: overhang, bays, overhang
     Le = d / ne
-    n_el = 2 * oh + (n_sleepers - 1) * ne
     node_x = sx[0] - oh * Le + Le * np.arange(n_el + 1)
     sleeper_node = (oh + ne * np.arange(n_sleepers)).astype(np.int64)
 

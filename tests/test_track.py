@@ -126,6 +126,10 @@ def test_point_load_outside_rail_refused() -> None:
         ({"overhang_elements": 1.5}, "overhang_elements = 1.5: must be an integer"),
         ({"overhang_elements": float("nan")}, "overhang_elements = nan: must be an integer"),
         ({"n_sleepers": 1}, "n_sleepers = 1: need at least 2"),
+        # absurd sizes are refused at once, before anything is allocated (10**9 sleepers ran for minutes)
+        ({"n_sleepers": 10**9}, "n_sleepers = 1000000000, elements_per_bay = 2: about 6000000002 degrees of freedom, "
+                                "more than 2000000"),
+        ({"n_sleepers": 1001, "elements_per_bay": 10**6}, "more than 2000000"),
     ],
 )
 def test_assemble_refuses_bad_counts(kwargs: dict[str, object], fragment: str) -> None:

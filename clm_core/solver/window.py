@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 from clm_core.arrays import Array, IntArray
 from clm_core.checks import integer
 from clm_core.errors import InputError, ParameterError
+from clm_core.track import check_size
 
 #: Side of the clamped ghost bay: ahead ('forward'), behind ('backward'), none ('free', a fixed window).
 Orientation = Literal["forward", "backward", "free"]
@@ -117,6 +118,7 @@ class Window:
             if value is not None:
                 integer(name, value)
         n = int(n_sleepers)
+        check_size(n, int(elements_per_bay), int(elements_per_bay))
         margin = max(2, min(10, n // 6)) if margin_sleepers is None else int(margin_sleepers)
         lead = n // 3 if lead_sleepers is None else int(lead_sleepers)
         if margin < 1:

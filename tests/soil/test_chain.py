@@ -188,6 +188,7 @@ _SOIL = {"mf": 380.0, "kf": 7.2e7, "df": 6.8e5, "kc": 1.6e8, "dc": -1.2e5}
         ({"loaded": "x"}, "loaded = 'x': must be an integer"),
         ({"loaded": 1.5}, "loaded = 1.5: must be an integer"),
         ({"loaded": 5}, "loaded = 5: must be an integer in 0..4 (an area index)"),
+        ({"n_areas": 10**9 + 1}, "n_areas = 1000000001: must be an integer <= 100001 (a chain of 2n + 1 areas)"),
         ({"s": [np.nan]}, "must be finite"),
         ({"s": [np.inf]}, "must be finite"),
         ({"s": []}, "s: must be a non-empty 1-D array"),
@@ -198,7 +199,7 @@ _SOIL = {"mf": 380.0, "kf": 7.2e7, "df": 6.8e5, "kc": 1.6e8, "dc": -1.2e5}
 def test_chain_response_refuses_bad_input(kwargs: dict[str, object], fragment: str) -> None:
     args: dict[str, object] = {"s": [2j * np.pi]} | kwargs
     with pytest.raises(ParameterError, match=re.escape(fragment)):
-        chain_response(_SOIL, 5, args.pop("s"), **args)  # type: ignore[arg-type]
+        chain_response(_SOIL, args.pop("n_areas", 5), args.pop("s"), **args)  # type: ignore[arg-type]
 
 
 def test_laplace_refuses_nonfinite_sigma() -> None:
