@@ -249,11 +249,16 @@ def _band(
             raise ParameterError(f"{name}[{i}]: shape {z.shape} differs from freqs {f.shape}")
         out.append(z)
     sel = (f >= fmin - 1e-12) & (f <= fmax + 1e-12)
-    if sel.sum() < 3:
-        raise ParameterError(f"band [{fmin:g}, {fmax:g}] Hz: holds {int(sel.sum())} frequencies of the data, need >= 3")
+    n_distinct = np.unique(f[sel]).size
+    if n_distinct < 3:
+        raise ParameterError(
+            f"band [{fmin:g}, {fmax:g}] Hz: holds {n_distinct} distinct frequencies of the data, need >= 3"
+        )
     for i, z in enumerate(out):
         if not np.all(np.isfinite(z[sel])):
             raise ParameterError(f"{name}[{i}]: non-finite values in the band")
+        if not np.any(z[sel]):
+            raise ParameterError(f"{name}[{i}]: zero at every frequency of the band: nothing to fit")
     return f[sel], [z[sel] for z in out]
 
 

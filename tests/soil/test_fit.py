@@ -146,7 +146,7 @@ def test_fit_lysmer_exact() -> None:
     ("kwargs", "match"),
     [
         ({"fmin": 50.0, "fmax": 10.0}, "band"),
-        ({"fmin": 200.0, "fmax": 300.0}, "holds 0 frequencies"),
+        ({"fmin": 200.0, "fmax": 300.0}, "holds 0 distinct frequencies"),
         ({"fmin": 0.0, "fmax": 80.0, "norm": "l1"}, "norm"),
         ({"fmin": 0.0, "fmax": 80.0, "on_unstable": "ignore"}, "on_unstable"),
     ],
@@ -156,6 +156,17 @@ def test_bad_arguments(kwargs: dict[str, object], match: str) -> None:
     S, A, _ = chain_sums(f, TABLE1, 5)
     with pytest.raises(ParameterError, match=match):
         fit_clm_sums(f, S, A, **kwargs)  # type: ignore[arg-type]
+
+
+def test_degenerate_data_is_refused_not_fitted() -> None:
+    """Three copies of one frequency fit anything, and zero data give zeros with a NaN residual: both refused."""
+    K = np.array([1e8 + 1e6j, 1.1e8 + 1e6j, 1.2e8 + 1e6j])
+    with pytest.raises(ParameterError, match=r"holds 1 distinct frequencies of the data, need >= 3"):
+        fit_lysmer([10.0, 10.0, 10.0], K, fmin=0.0, fmax=100.0)
+    with pytest.raises(ParameterError, match=r"^impedance\[0\]: zero at every frequency of the band"):
+        fit_lysmer([10.0, 20.0, 30.0], np.zeros(3), fmin=0.0, fmax=100.0)
+    with pytest.raises(ParameterError, match=r"^sums\[1\]: zero at every frequency of the band"):
+        fit_clm_sums([10.0, 20.0, 30.0], K, np.zeros(3), fmin=0.0, fmax=100.0)
 
 
 def test_shape_mismatch() -> None:
