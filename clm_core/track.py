@@ -326,7 +326,12 @@ class TrackSystem:
         return ab
 
 
-def check_size(n_sleepers: int, elements_per_bay: int, overhang_elements: int) -> None:
+def _overhang(elements_per_bay: int, overhang_elements: int | None) -> int:
+    """Rail elements beyond each end sleeper: ``overhang_elements``, by default ``max(1, elements_per_bay // 2)``."""
+    return max(1, elements_per_bay // 2) if overhang_elements is None else int(overhang_elements)
+
+
+def check_size(n_sleepers: int, elements_per_bay: int, overhang_elements: int | None = None) -> None:
     """Refuse a model of more than :data:`MAX_DOFS` degrees of freedom before anything is allocated.
 
     Raises
@@ -334,9 +339,11 @@ def check_size(n_sleepers: int, elements_per_bay: int, overhang_elements: int) -
     ParameterError
         The rail, sleepers and areas of ``n_sleepers`` sleepers with
         ``elements_per_bay`` rail elements per bay and ``overhang_elements`` at
-        each end have more than :data:`MAX_DOFS` degrees of freedom.
+        each end (default as in :func:`assemble`) have more than
+        :data:`MAX_DOFS` degrees of freedom.
     """
-    n_dof = 2 * (2 * overhang_elements + (n_sleepers - 1) * elements_per_bay + 1) + 2 * n_sleepers
+    oh = _overhang(elements_per_bay, overhang_elements)
+    n_dof = 2 * (2 * oh + (n_sleepers - 1) * elements_per_bay + 1) + 2 * n_sleepers
     if n_dof > MAX_DOFS:
         raise ParameterError(
             f"n_sleepers = {n_sleepers}, elements_per_bay = {elements_per_bay}: about {n_dof} degrees of freedom, "
@@ -399,7 +406,7 @@ def assemble(
     if rail_ends not in ("free", "pinned", "clamped"):
         raise ParameterError(f"rail_ends = {rail_ends!r}: one of free, pinned, clamped")
     ne = elements_per_bay
-    oh = max(1, ne // 2) if overhang_elements is None else int(overhang_elements)
+    oh = _overhang(ne, overhang_elements)
     if oh < 0:
         raise ParameterError(f"overhang_elements = {oh}: must be >= 0")
     check_size(n_sleepers, ne, oh)

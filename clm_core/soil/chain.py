@@ -96,8 +96,7 @@ def _loaded_area(loaded: int | None, n_areas: int) -> int:
     """The loaded area's index: ``loaded``, or the centre one if None."""
     if loaded is None:
         return n_areas // 2
-    c = integer("loaded", loaded, 0, n_areas - 1, hint="an area index")
-    return c
+    return integer("loaded", loaded, 0, n_areas - 1, hint="an area index")
 
 
 def _neighbours(n_areas: int) -> Array:

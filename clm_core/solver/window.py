@@ -118,7 +118,7 @@ class Window:
             if value is not None:
                 integer(name, value)
         n = int(n_sleepers)
-        check_size(n, int(elements_per_bay), int(elements_per_bay))
+        check_size(n, int(elements_per_bay))  # before the operator cache keys its n-sleeper values
         margin = max(2, min(10, n // 6)) if margin_sleepers is None else int(margin_sleepers)
         lead = n // 3 if lead_sleepers is None else int(lead_sleepers)
         if margin < 1:

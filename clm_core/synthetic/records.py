@@ -35,7 +35,7 @@ from clm_core.calibration.channels import ChannelSpec, unit_factor
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.passby import simulate_channels
 from clm_core.calibration.signals import Signal
-from clm_core.checks import finite, nonnegative, positive
+from clm_core.checks import finite, integer, nonnegative, positive
 from clm_core.excitation import decay_pulse
 from clm_core.newmark import NewmarkLinear
 from clm_core.params import ModelParams, SoilParams, load_model, load_soil
@@ -114,8 +114,7 @@ def _check_hammer_test(fs: float, duration: float, hit_times: Sequence[float], p
     """The acquisition settings of a hammer test: rate, length, hits inside the record, a resolved pulse."""
     fs = positive(f"{what}: fs", fs, CalibrationError, "Hz")
     duration = positive(f"{what}: duration", duration, CalibrationError, "s")
-    if isinstance(oversample, bool) or int(oversample) != oversample or oversample < 1:
-        raise CalibrationError(f"{what}: oversample = {oversample!r}: must be an integer >= 1")
+    integer(f"{what}: oversample", oversample, 1, error=CalibrationError)
     if duration * fs < 2:
         raise CalibrationError(f"{what}: duration = {duration:g} s at fs = {fs:g} Hz: fewer than 2 samples")
     td = positive(f"{what}: pulse_duration", pulse_duration, CalibrationError, "s")
