@@ -78,6 +78,7 @@ forces and displacements positive downwards):
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 from collections.abc import Mapping
@@ -539,14 +540,6 @@ class HistoryWriter:
                          profile_wheels=pw)
 
 
-#: The arrays of a ``history.npz``.
-_HISTORY_ARRAYS = (
-    "t", "first_sleeper", "spacing", "soil_force", "rail_deflection", "sleeper_displacement", "area_displacement",
-    "wheel_position", "wheel_force", "wheel_deflection", "wheel_velocity", "peak_sleeper_index",
-    "peak_soil_force", "peak_rail_deflection",
-)
-
-
 def load_history(path: str | Path) -> TimeHistory:
     """Read a ``history.npz`` written by :class:`HistoryWriter`.
 
@@ -562,19 +555,14 @@ def load_history(path: str | Path) -> TimeHistory:
         raise InputError(f"{path}: cannot read a history.npz ({exc})") from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise InputError(f"{path}: not a history.npz (a single .npy array, not an .npz archive)")
+    names = [f.name for f in dataclasses.fields(TimeHistory)]  # a history.npz holds one array per field
     with z:
-        missing = [k for k in _HISTORY_ARRAYS if k not in z.files]
+        missing = [k for k in names if k not in z.files]
         if missing:
             raise InputError(f"{path}: not a history.npz: no array {', '.join(missing)}")
-        return TimeHistory(
-            t=z["t"], first_sleeper=z["first_sleeper"], spacing=float(z["spacing"]),
-            soil_force=z["soil_force"], rail_deflection=z["rail_deflection"],
-            sleeper_displacement=z["sleeper_displacement"], area_displacement=z["area_displacement"],
-            wheel_position=z["wheel_position"], wheel_force=z["wheel_force"],
-            wheel_deflection=z["wheel_deflection"], wheel_velocity=z["wheel_velocity"],
-            peak_sleeper_index=z["peak_sleeper_index"], peak_soil_force=z["peak_soil_force"],
-            peak_rail_deflection=z["peak_rail_deflection"],
-        )
+        arrays: dict[str, Any] = {k: z[k] for k in names}
+    arrays["spacing"] = float(arrays["spacing"])
+    return TimeHistory(**arrays)
 
 
 # ----------------------------------------------------------------------------- vehicle runs
