@@ -11,18 +11,13 @@ node, ``clm replay`` and the tests all call them, so "the node's output
 equals the offline computation" holds by construction, however the messages
 were batched.
 
-Use (what the node and ``clm replay`` do with the messages waiting)::
+Use (what the node, ``clm replay`` and the fleet do; :mod:`clm_core.online.edge`)::
 
-    frames = []
-    for raw in waiting:                               # serialized clm_msgs/WheelLoads
-        try:
-            frames.append(frame_from_cdr(raw))        # clm_core.io.messages: numpy CDR codec
-        except MessageError as exc:                   # undecodable, header nanosec >= 1e9
-            model.reject(Reason.MALFORMED, str(exc))  # counted with the other refusals
-    for answer in model.process_batch(frames):        # one compiled call through all of them
-        ...                                           # a ResponseFrame (publish it) or a Rejected
-
-    model = OnlineTrackModel(params, ..., stats=model.stats)   # a rebuilt model carries the counters on
+    model = OnlineTrackModel.from_settings(settings)   # the one factory: run settings by name
+    for a in answer(model, waiting):                   # serialized clm_msgs/WheelLoads, one compiled call
+        ...                                            # an Answer (a.sleeper_response, a.wheel_rail_response:
+                                                       # bytes to publish) or a Rejected (counted)
+    model = model.renewed()                            # a new stream: fresh state, the same counters
 
 Time
 ----
@@ -114,12 +109,16 @@ frame, interpolated from this one, would be refused).
 
 from __future__ import annotations
 
-from clm_core.online.model import RUN_FRAMES, OnlineTrackModel
+from clm_core.online.edge import Answer, answer, decode, respond
+from clm_core.online.model import MODEL_SETTINGS, PARAMS_SETTINGS, RUN_FRAMES, OnlineTrackModel, model_params
 from clm_core.online.policy import InputPolicy, Timeline
 from clm_core.online.records import OnlineStats, Reason, Rejected, ResponseFrame, WheelFrame
 
 __all__ = [
+    "MODEL_SETTINGS",
+    "PARAMS_SETTINGS",
     "RUN_FRAMES",
+    "Answer",
     "InputPolicy",
     "OnlineStats",
     "OnlineTrackModel",
@@ -128,4 +127,8 @@ __all__ = [
     "ResponseFrame",
     "Timeline",
     "WheelFrame",
+    "answer",
+    "decode",
+    "model_params",
+    "respond",
 ]

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import operator
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,12 +38,17 @@ from clm_core.io.timebase import NS
 from clm_core.online import policy as rules
 from clm_core.online.policy import InputPolicy, Timeline, TimelineState, check_frame, clip
 from clm_core.online.records import OnlineStats, Reason, Rejected, ResponseFrame, WheelFrame
-from clm_core.params import ModelParams
-from clm_core.solver import FrameLoads, FrameResponses, TrackSimulator
-from clm_core.solver import _frame_kernel as fk
+from clm_core.params import ModelParams, model_from_settings
+from clm_core.settings import MODEL_PARAMETERS, ONLINE_POLICY, setting
+from clm_core.solver import STOP_INVALID, STOP_SHIFT, FrameLoads, FrameResponses, TrackSimulator
 
 #: Frames per kernel run at most (bounds the output buffers and the work redone after a refused response).
 RUN_FRAMES = 256
+#: The run settings of the model itself (:mod:`clm_core.settings`): the window, the stream rules, the input policy.
+MODEL_SETTINGS: tuple[str, ...] = ("dt", "n_sleepers", "elements_per_bay", "lead_sleepers", "max_gap",
+                                   "accept_new_wheels", "initial_state", *ONLINE_POLICY)
+#: The run settings of the parameter set (:func:`model_params`; ``<section>.<name>`` overrides besides).
+PARAMS_SETTINGS: tuple[str, ...] = ("track", "soil", "model", "params_file")
 _F8, _I8 = np.dtype(np.float64), np.dtype(np.int64)
 
 
@@ -54,6 +59,43 @@ def _dt_ns(dt: float) -> int:
     if n < 1 or abs(dt * NS - n) > 1e-3:
         raise ParameterError(f"dt = {dt!r} s: the online model needs a whole number of nanoseconds")
     return int(n)
+
+
+def _setting_values(values: Mapping[str, Any], names: Sequence[str]) -> dict[str, Any]:
+    """The named settings of ``values``, checked (the schema's default for a missing one).
+
+    A ROS parameter's stand-in for "unset" (``-1``, NaN, ``""``) and None both
+    mean the automatic value of an automatic setting.
+    """
+    return {n: setting(n).from_ros(values[n]) if n in values else setting(n).default for n in names}
+
+
+def model_params(values: Mapping[str, Any]) -> ModelParams:
+    """The validated parameter set that run settings describe: the one rule of the node, replay and fleet.
+
+    Parameters
+    ----------
+    values : mapping
+        Run settings by name (:mod:`clm_core.settings`; other keys are
+        ignored, a missing setting takes its default): ``track``, ``soil``,
+        ``model`` presets or files, or a full ``params_file`` that replaces
+        them; and per-parameter overrides ``<section>.<name>`` (``track.kb``
+        [N/m], ...; None or NaN: not overridden).
+
+    Returns
+    -------
+    ModelParams
+
+    Raises
+    ------
+    ParameterError
+        A setting outside its range or choices, an unknown preset, a bad
+        parameter value.
+    """
+    v = _setting_values(values, PARAMS_SETTINGS)
+    over = {key.split(".", 1)[1]: x for key, s in MODEL_PARAMETERS.items()
+            if key in values and (x := s.from_ros(values[key])) is not None}
+    return model_from_settings(v["track"], v["soil"], v["model"], v["params_file"], over)
 
 
 def _vector(a: Any, dtype: np.dtype[Any]) -> NDArray[Any]:
@@ -172,6 +214,71 @@ class OnlineTrackModel:
         self._ints1_views = (ints[0:2], ints[2:3], ints[3:5], ints[5:7])
         self._warm_up()
 
+    @classmethod
+    def from_settings(cls, values: Mapping[str, Any] | None = None, *, params: ModelParams | None = None,
+                      stats: OnlineStats | None = None) -> OnlineTrackModel:
+        """The model that run settings describe: the one factory of the track node, ``clm replay`` and the fleet.
+
+        Parameters
+        ----------
+        values : mapping, optional
+            Run settings by name (:mod:`clm_core.settings`; other keys are
+            ignored, a missing one takes its default, a ROS stand-in for
+            "unset" or None its automatic value): the parameter set
+            (:func:`model_params`: ``track``, ``soil``, ``model``,
+            ``params_file``, ``<section>.<name>`` overrides) and the model's
+            own :data:`MODEL_SETTINGS` (``dt`` [s], ``n_sleepers``,
+            ``elements_per_bay``, ``lead_sleepers``, ``max_gap`` [s],
+            ``accept_new_wheels``, ``initial_state``, the input policy).
+        params : ModelParams, optional
+            The parameter set, if already built (then the parameter settings
+            of ``values`` are not read).
+        stats : OnlineStats, optional
+            Counters to carry on (a rebuilt model continues its predecessor's).
+
+        Returns
+        -------
+        OnlineTrackModel
+
+        Raises
+        ------
+        ParameterError
+            A setting outside its range or choices (naming it), a bad preset.
+        StabilityError
+            A parameter set whose time integration would not be stable.
+
+        Examples
+        --------
+        >>> from clm_core.online import OnlineTrackModel, WheelFrame
+        >>> model = OnlineTrackModel.from_settings({"track": "mevergnies", "dt": 1e-4, "n_sleepers": 31})
+        >>> model.n_sleepers, model.dt_ns, model.settings["max_gap"]
+        (31, 100000, 1.0)
+        >>> r = model.process(WheelFrame(10**9, [0], [0.0], [100e3]))
+        >>> r.stamp_ns, r.wheel_ids.tolist(), bool(r.wheel_deflection[0] > 0)
+        (1000000000, [0], True)
+        """
+        values = {} if values is None else values
+        v = _setting_values(values, MODEL_SETTINGS)
+        return cls(
+            params if params is not None else model_params(values),
+            dt=v["dt"], n_sleepers=v["n_sleepers"], elements_per_bay=v["elements_per_bay"], max_gap=v["max_gap"],
+            accept_new_wheels=v["accept_new_wheels"], initial_state=v["initial_state"],
+            lead_sleepers=v["lead_sleepers"], stats=stats, policy=InputPolicy.from_settings(v),
+        )
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """The model's own run settings (:data:`MODEL_SETTINGS`), as :meth:`from_settings` takes them."""
+        pol = self.policy
+        return {"dt": self.dt, "n_sleepers": self.n_sleepers, "elements_per_bay": self.elements_per_bay,
+                "lead_sleepers": self.lead_sleepers, "max_gap": self.max_gap,
+                "accept_new_wheels": self.accept_new_wheels, "initial_state": self.initial_state,
+                **{n: getattr(pol, n) for n in ONLINE_POLICY}}
+
+    def renewed(self) -> OnlineTrackModel:
+        """A fresh model of the same parameters and settings, counting into the same counters (a new stream)."""
+        return type(self).from_settings(self.settings, params=self.params, stats=self.stats)
+
     # ------------------------------------------------------------------ state
 
     @property
@@ -182,7 +289,7 @@ class OnlineTrackModel:
     @property
     def time_ns(self) -> int | None:
         """Model time [ns]: the time of the last step integrated (None before the first frame)."""
-        return None if self.timeline.last is None else self.epoch_ns + self.sim._s.k * self.dt_ns
+        return None if self.timeline.last is None else self.epoch_ns + self.sim.steps * self.dt_ns
 
     def _register(self, wheel_id: int) -> int:
         slot = len(self._slot_ids)
@@ -399,11 +506,11 @@ class OnlineTrackModel:
 
     def _refusal(self, res: FrameResponses, p: _Prepared) -> Rejected:
         """The refusal of the frame at which the kernel stopped."""
-        if res.status == fk.STOP_INVALID:
+        if res.status == STOP_INVALID:
             reason = rules.RULES[res.rule]
             assert reason is not None
             return Rejected(reason, self._value_message(reason, p, res.wheel))
-        reason = Reason.OUTSIDE_WINDOW if res.status == fk.STOP_SHIFT else Reason.IMPLAUSIBLE_RESPONSE
+        reason = Reason.OUTSIDE_WINDOW if res.status == STOP_SHIFT else Reason.IMPLAUSIBLE_RESPONSE
         return Rejected(reason, clip(f"{res.failure} (stamp {p.stamp} ns)"))
 
     def _count(self, out: list[Any], a: int, b: int) -> None:
@@ -452,14 +559,14 @@ class OnlineTrackModel:
             soffsets = np.zeros(R + 1, dtype=np.int64)
             np.cumsum([p.speeds.size for p in ps], out=soffsets[1:])
             bounds = offsets.tolist()
-        k0 = self.sim._s.k
+        k0 = self.sim.steps
         res = self._advance(self._loads(ticks, k_end, offsets, slots, P, F, S, soffsets, len(self._slot_ids)))
         done = res.done
         for r in range(done):
             out[run[r][0]] = self._response(ps[r], res, r, bounds[r], bounds[r + 1], False)
         if done:
             self._prev_tick = int(ticks[done])
-            steps = self.sim._s.k - k0
+            steps = self.sim.steps - k0
             self.stats.steps += steps
             self.stats.simulated_ns += steps * self.dt_ns
         return done, res
@@ -474,7 +581,7 @@ class OnlineTrackModel:
         """
         old_ids = list(self._slot_ids)
         sim = self.sim
-        saved, saved_pos, saved_F = sim._save(), self._pos.copy(), self._F.copy()
+        saved, saved_pos, saved_F = sim.checkpoint(), self._pos.copy(), self._F.copy()
         if slots is None:
             self._unregister(0)
             slots = np.array([self._register(i) for i in p.ids.tolist()], dtype=np.int64)
@@ -496,7 +603,7 @@ class OnlineTrackModel:
             refusal = Rejected(Reason.EMPTY if p.positions.size == 0 else Reason.OUTSIDE_WINDOW,
                                clip(f"{exc} (stamp {p.stamp} ns)"))
         if refusal is not None:
-            sim._restore(saved)
+            sim.rollback(saved)
             self._unregister(0)
             for i in old_ids:
                 self._register(i)
@@ -524,4 +631,4 @@ class OnlineTrackModel:
                                  p.positions.copy(), w[0, a:b], w[1, a:b], resynced)
 
 
-__all__ = ["RUN_FRAMES", "OnlineTrackModel"]
+__all__ = ["MODEL_SETTINGS", "PARAMS_SETTINGS", "RUN_FRAMES", "OnlineTrackModel", "model_params"]

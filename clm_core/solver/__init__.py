@@ -101,7 +101,19 @@ Per-sleeper overrides are applied in one place, :class:`clm_core.track.SleeperVa
 
 from __future__ import annotations
 
-from clm_core.solver._frame_kernel import FrameLoads
+from clm_core.solver._frame_kernel import (
+    LIM_FORCE,
+    LIM_POSITION,
+    LIM_SPAN,
+    LIM_SPEED,
+    LIM_TENSILE,
+    STOP_INVALID,
+    STOP_RESPONSE,
+    STOP_SHIFT,
+    FrameLoads,
+    check_frame,
+)
+from clm_core.solver._kernels import free_response
 from clm_core.solver.loads import LoadFunction, Loads, LoadTable
 from clm_core.solver.operators import DofLayout, Operator, OperatorCache
 from clm_core.solver.records import Block, FrameResponses, SleeperFields, Snapshot
@@ -111,6 +123,14 @@ from clm_core.solver.window import Orientation, Placement, Window
 
 __all__ = [
     "CHUNK_STEPS",
+    "LIM_FORCE",
+    "LIM_POSITION",
+    "LIM_SPAN",
+    "LIM_SPEED",
+    "LIM_TENSILE",
+    "STOP_INVALID",
+    "STOP_RESPONSE",
+    "STOP_SHIFT",
     "Block",
     "DofLayout",
     "FrameLoads",
@@ -128,4 +148,6 @@ __all__ = [
     "Snapshot",
     "TrackSimulator",
     "Window",
+    "check_frame",
+    "free_response",
 ]

@@ -169,6 +169,11 @@ class TrackSimulator:
         """Current simulation time [s]."""
         return self._s.t0 + self._s.k * self.dt
 
+    @property
+    def steps(self) -> int:
+        """Steps integrated since the last :meth:`initialize` (the current time is ``t0 + steps * dt``)."""
+        return self._s.k
+
     def time_of_step(self, n: int) -> float:
         """Time [s] of step ``n``, counted from the last :meth:`initialize`."""
         return self._s.t0 + n * self.dt
@@ -214,6 +219,21 @@ class TrackSimulator:
         return self._window.allowed_range(self._s.placement)
 
     # ------------------------------------------------------------------ state
+
+    def checkpoint(self) -> SimulatorState:
+        """A copy of everything that changes while the simulator runs, to go back to with :meth:`rollback`.
+
+        The state of a caller that must undo work (the online model refusing a
+        frame after it was stepped); the window's operators are not copied
+        (they are shared, keyed by placement).
+        """
+        return self._s.copy()
+
+    def rollback(self, checkpoint: SimulatorState) -> None:
+        """Put back the state of :meth:`checkpoint` (the checkpoint stays valid for another rollback)."""
+        if not isinstance(checkpoint, SimulatorState):
+            raise TypeError(f"rollback: a checkpoint of this simulator expected, got {type(checkpoint).__name__}")
+        self._s = checkpoint.copy()
 
     def _save(self) -> SimulatorState:
         return self._s.copy()

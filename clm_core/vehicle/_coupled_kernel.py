@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from clm_core.solver._kernels import free_response
+from clm_core.solver import free_response
 from clm_core.vehicle.contact import fused_vehicle_contact_step
 
 

@@ -70,3 +70,32 @@ def test_time_of_step_counts_from_initialize(mev: ModelParams) -> None:
     sim.advance(1.51, ([0.4], [F0]))
     assert sim.time_of_step(0) == 1.5
     assert sim.time_of_step(50) == pytest.approx(sim.t)
+
+
+def test_checkpoint_and_rollback_put_back_time_window_state_and_peaks(mev: ModelParams) -> None:
+    """The public checkpoint/rollback (the online model's undo): after moving on across window shifts, a rollback
+    gives back the checkpoint's state exactly, twice from the same checkpoint, and the run continues as one that
+    never moved on."""
+    sim = _start(mev)
+    cp = sim.checkpoint()
+    steps0 = sim.steps
+
+    def state(s: TrackSimulator) -> tuple[object, ...]:
+        return (s.t, s.steps, s.window, s.placement, s.operator, *s.state_vectors(), *s.peaks())
+
+    before = state(sim)
+    for _ in range(2):
+        w0 = sim.window[0]
+        sim.advance(sim.t + 0.2, lambda t: ([V * t], [F0]))
+        assert sim.window[0] > w0 and sim.steps > steps0  # moved on, window shifted
+        sim.rollback(cp)
+        after = state(sim)
+        assert after[:5] == before[:5]
+        for a, b in zip(after[5:], before[5:]):
+            assert np.array_equal(a, b)
+    ref = _start(mev)
+    for s in (sim, ref):
+        s.advance(s.t + 0.05, lambda t: ([V * t], [F0]))
+    assert np.array_equal(sim.state_vectors()[0], ref.state_vectors()[0])
+    with pytest.raises(TypeError, match="checkpoint"):
+        sim.rollback("not a checkpoint")  # type: ignore[arg-type]

@@ -4,10 +4,10 @@
 from a rosbag2 bag (mcap or sqlite3) with the suite's bag reader
 (:class:`clm_core.io.bags.BagReader`: counts cross-checked against the
 metadata, damaged chunks refused unless ``allow_partial``), decodes them with
-the numpy CDR codec (:func:`clm_core.io.messages.frame_from_cdr`), passes
-them through :class:`clm_core.online.OnlineTrackModel` in chunks
-(:meth:`~clm_core.online.OnlineTrackModel.process_batch`, bit for bit what
-the track node computes message by message), and writes a bag
+the online edge of the track node (:func:`clm_core.online.answer`: the numpy
+CDR codec, :meth:`~clm_core.online.OnlineTrackModel.process_batch` in
+chunks, bit for bit what the track node computes message by message, and
+the encoded answers), and writes a bag
 (:class:`clm_core.io.bags.BagWriter`: it appears only when complete) with the
 input messages (copied byte for byte) and the responses (``sleeper_response``,
 ``wheel_rail_response``) stamped like their inputs.
@@ -27,19 +27,10 @@ from pathlib import Path
 from typing import Any
 
 from clm_core.io.bags import BagReader, BagWriter, default_qos
-from clm_core.io.errors import BagError, MessageError
-from clm_core.io.messages import (
-    SLEEPER_RESPONSE,
-    WHEEL_LOADS,
-    WHEEL_RAIL_RESPONSE,
-    encode_sleeper_response,
-    encode_wheel_rail_response,
-    frame_from_cdr,
-    sleeper_fields,
-    wheel_fields,
-)
+from clm_core.io.errors import BagError
+from clm_core.io.messages import SLEEPER_RESPONSE, WHEEL_LOADS, WHEEL_RAIL_RESPONSE
 from clm_core.io.timebase import NS
-from clm_core.online import OnlineTrackModel, Reason, Rejected, ResponseFrame, WheelFrame
+from clm_core.online import OnlineTrackModel, Rejected, answer
 from clm_ros.errors import ClmRosError
 
 WHEEL_RAIL = WHEEL_RAIL_RESPONSE
@@ -156,20 +147,9 @@ def _chunk(chunk: list[Any], model: OnlineTrackModel, writer: BagWriter, conns: 
            frame_id: str, stats: ReplayStats, max_rejected: int | None) -> None:
     """Decode and process a chunk of messages, write them and their responses in order."""
     c_in, c_s, c_w = conns
-    results: list[ResponseFrame | Rejected | None] = []
-    frames: list[WheelFrame] = []
-    for m in chunk:
-        try:
-            frames.append(frame_from_cdr(m.data))
-        except MessageError as exc:
-            results.append(model.reject(Reason.MALFORMED, f"message {stats.read + len(results) + 1} on {in_topic} "
-                                        f"cannot be decoded ({exc})"))
-            continue
-        results.append(None)
-    answers = iter(model.process_batch(frames))
-    for m, r in zip(chunk, results):
+    answers = answer(model, [m.data for m in chunk], frame_id, topic=in_topic, first=stats.read + 1)
+    for m, res in zip(chunk, answers):
         stats.read += 1
-        res = next(answers) if r is None else r
         writer.write(c_in, m.log_ns, m.data)
         if isinstance(res, Rejected):
             cause = res.reason.value
@@ -182,7 +162,6 @@ def _chunk(chunk: list[Any], model: OnlineTrackModel, writer: BagWriter, conns: 
                 )
             continue
         stats.accepted += 1
-        s, w = sleeper_fields(res), wheel_fields(res)
-        writer.write(c_s, m.log_ns, encode_sleeper_response(res.stamp_ns, frame_id, *s.values()))
-        writer.write(c_w, m.log_ns, encode_wheel_rail_response(res.stamp_ns, frame_id, *w.values()))
+        writer.write(c_s, m.log_ns, res.sleeper_response)
+        writer.write(c_w, m.log_ns, res.wheel_rail_response)
         stats.written += 1

@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from clm_core.commands._common import remove_bag
-    from clm_core.online import InputPolicy, OnlineTrackModel
+    from clm_core.online import OnlineTrackModel
     from clm_core.progress import Progress
     from clm_ros.errors import ClmRosError
     from clm_ros.replay import replay_bag
@@ -64,17 +64,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"clm replay: error: --out {out}: exists; choose a new path or pass --overwrite", file=sys.stderr)
             return 2
         remove_bag(out, "--out")
-    params = model_from_args(args)
-    model = OnlineTrackModel(
-        params,
-        dt=args.dt,
-        n_sleepers=args.n_sleepers,
-        elements_per_bay=args.elements_per_bay,
-        max_gap=args.max_gap,
-        accept_new_wheels=args.accept_new_wheels,
-        lead_sleepers=args.lead_sleepers,
-        policy=InputPolicy.from_settings(vars(args)),
-    )
+    model = OnlineTrackModel.from_settings(vars(args), params=model_from_args(args))
     if args.max_rejected < 0:
         print(f"clm replay: error: --max-rejected = {args.max_rejected}: must be >= 0", file=sys.stderr)
         return 2
