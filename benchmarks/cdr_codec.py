@@ -69,11 +69,11 @@ def main() -> int:
         from rclpy.serialization import deserialize_message, serialize_message
 
         from clm_core.online import OnlineTrackModel
-        from clm_core.params import load_model
     except ImportError as exc:
         print(f"(rclpy comparison skipped: {exc})")
         return 0
-    model = OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=61)
+    model = OnlineTrackModel.from_settings({"track": "mevergnies", "soil": "mevergnies", "model": "clm", "dt": 1e-4,
+                                            "n_sleepers": 61})
     resp = model.process(msgs.frame_from_msg(deserialize_message(wl, WheelLoads)))
     rclpy_cases = {
         "rclpy: deserialize + frame_from_msg": lambda: msgs.frame_from_msg(deserialize_message(wl, WheelLoads)),

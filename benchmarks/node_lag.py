@@ -65,7 +65,7 @@ from online_path import KernelCall, stream  # noqa: E402
 from online_path import side_by_side as tight_loops  # noqa: E402
 
 from clm_core.io.messages import encode_wheel_loads  # noqa: E402
-from clm_core.io.timebase import NS  # noqa: E402
+from clm_core.io.timebase import NS, lag_figures  # noqa: E402
 from clm_core.params import load_model  # noqa: E402
 
 TRACK = {"track": "mevergnies", "soil": "mevergnies", "model": "clm", "dt": 1e-4, "diagnostics_period": 1.0}
@@ -91,10 +91,6 @@ def machine_cpu() -> tuple[float, float]:
     """(busy, total) jiffies of all CPUs."""
     v = [int(x) for x in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
     return float(sum(v) - v[3] - v[4]), float(sum(v))
-
-
-def pct(x: np.ndarray, q: float) -> float:
-    return float(np.percentile(x, q)) if x.size else float("nan")
 
 
 @contextlib.contextmanager
@@ -190,15 +186,16 @@ def track_node(params: dict[str, Any], log_dir: Path, name: str) -> Iterator[tup
                 stop_processes([proc], timeout=20)
 
 
-def lag_figures(stamps: list[int], recv: list[int]) -> dict[str, float]:
+def answer_lags(stamps: list[int], recv: list[int]) -> dict[str, float]:
     """Lag (receive time - stamp) over all answers and over the first second of traffic [s]."""
     st = np.asarray(stamps, dtype=np.int64)
-    lag = (np.asarray(recv, dtype=np.int64) - st) / 1e9
-    first = lag[st - st[0] < NS] if st.size else lag
-    return {"answers": float(lag.size), "lag_median_s": pct(lag, 50), "lag_p99_s": pct(lag, 99),
-            "lag_max_s": float(lag.max()) if lag.size else float("nan"), "over_5ms": float((lag > 5e-3).sum()),
-            "over_20ms": float((lag > 20e-3).sum()), "first_second_median_s": pct(first, 50),
-            "first_second_max_s": float(first.max()) if first.size else float("nan")}
+    rv = np.asarray(recv, dtype=np.int64)
+    lag = (rv - st) / 1e9
+    first = (st - st[0] < NS) if st.size else np.zeros(0, dtype=bool)
+    whole, start = lag_figures(st, received_ns=rv), lag_figures(st[first], received_ns=rv[first])
+    return {"answers": float(whole.count), **whole.named(), "over_5ms": float((lag > 5e-3).sum()),
+            "over_20ms": float((lag > 20e-3).sum()), "first_second_median_s": start.median_s,
+            "first_second_max_s": start.max_s}
 
 
 def side_by_side(sleepers: int, rate: float, frames: int = 1500) -> dict[str, float]:
@@ -213,7 +210,7 @@ def side_by_side(sleepers: int, rate: float, frames: int = 1500) -> dict[str, fl
     todo = stream(frames, rate)
     kc, _, pc, _ = tight_loops(params, sleepers, steps, todo)
     kernel = KernelCall(params, sleepers, steps)
-    model = OnlineTrackModel(params, TRACK["dt"], sleepers)
+    model = OnlineTrackModel.from_settings({"dt": TRACK["dt"], "n_sleepers": sleepers}, params=params)
     model.process(todo[0])
     k_cpu = m_cpu = 0.0
     period = 1.0 / rate
@@ -270,14 +267,14 @@ def case_track(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         lis.wait(lambda: len(lis.diags) > n_diag, 10, "final diagnostics")
         rtf = [float(d["real_time_factor"]) for d in lis.diags if d.get("real_time_factor", "nan") != "nan"]
         out = steady_cpu(samples, proc.pid)
-        out.update(lag_figures(lis.stamps, lis.recv))
+        out.update(answer_lags(lis.stamps, lis.recv))
         # the same without this process's own lateness: from the moment each message was published
         index = {int(f.stamp_ns): i for i, f in enumerate(frames)}
         late = sent_at - np.array([f.stamp_ns for f in frames])
-        from_pub = np.array([r - sent_at[index[st]] for st, r in zip(lis.stamps, lis.recv) if st in index]) / 1e9
-        out.update({"from_publish_median_s": pct(from_pub, 50), "from_publish_p99_s": pct(from_pub, 99),
-                    "from_publish_max_s": float(from_pub.max()) if from_pub.size else float("nan"),
-                    "publisher_late_p99_s": pct(late / 1e9, 99), "publisher_late_max_s": float(late.max()) / 1e9})
+        from_pub = lag_figures([r - sent_at[index[st]] for st, r in zip(lis.stamps, lis.recv) if st in index])
+        late_f = lag_figures(late)
+        out.update({**from_pub.named("from_publish"), "publisher_late_p99_s": late_f.p99_s,
+                    "publisher_late_max_s": late_f.max_s})
         dp = [float(d["data_path_cpu_us_per_message"]) for d in lis.diags
               if d.get("data_path_cpu_us_per_message", "nan") != "nan"]
         out.update({"sent": float(n), "rtf_min": min(rtf, default=float("nan")),
@@ -342,7 +339,7 @@ def case_demo(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
             finally:
                 stop_processes([veh], timeout=20)
         good = [s for s in samples if not np.isnan(s[2])]
-        out: dict[str, Any] = lag_figures(lis.stamps, lis.recv)
+        out: dict[str, Any] = answer_lags(lis.stamps, lis.recv)
         if len(good) >= 3:
             (_, c0, v0, b0, t0, n0), (_, c1, v1, b1, t1, n1) = good[len(good) // 10], good[-1]
             msgs = max(n1 - n0, 1.0)

@@ -66,7 +66,7 @@ class KernelCall:
     """The bare compiled steps of one frame: run_steps for ``steps`` steps, 4 wheels, output at the last step."""
 
     def __init__(self, params: Any, n_sleepers: int, steps: int) -> None:
-        model = OnlineTrackModel(params, DT, n_sleepers)
+        model = OnlineTrackModel.from_settings({"dt": DT, "n_sleepers": n_sleepers}, params=params)
         sim = model.sim
         sim.initialize(40.0 - OFFSETS, np.full(4, 85e3))
         s = sim._s
@@ -90,7 +90,7 @@ def side_by_side(params: Any, n_sleepers: int, steps: int, frames: list[WheelFra
     """CPU and wall time [s] per call of the bare kernel and per frame of ``process``, measured in alternating
     blocks of ``block`` calls (the same load on both)."""
     kernel = KernelCall(params, n_sleepers, steps)
-    model = OnlineTrackModel(params, DT, n_sleepers)
+    model = OnlineTrackModel.from_settings({"dt": DT, "n_sleepers": n_sleepers}, params=params)
     model.process(frames[0])
     kc = kw = pc = pw = 0.0
     n = 0
@@ -111,7 +111,7 @@ def side_by_side(params: Any, n_sleepers: int, steps: int, frames: list[WheelFra
 
 
 def batch(params: Any, n_sleepers: int, frames: list[WheelFrame]) -> tuple[float, float, float]:
-    model = OnlineTrackModel(params, DT, n_sleepers)
+    model = OnlineTrackModel.from_settings({"dt": DT, "n_sleepers": n_sleepers}, params=params)
     model.process(frames[0])
     c, w = cpu_wall(lambda: model.process_batch(frames[1:]))
     assert model.stats.accepted == len(frames), model.stats

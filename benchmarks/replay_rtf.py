@@ -102,7 +102,7 @@ class NullWriter:
 
 
 def new_model(params: Any, dt: float, n_sleepers: int) -> OnlineTrackModel:
-    return OnlineTrackModel(params, dt=dt, n_sleepers=n_sleepers)
+    return OnlineTrackModel.from_settings({"dt": dt, "n_sleepers": n_sleepers}, params=params)
 
 
 def run_replay(in_bag: Path, out_dir: Path, params: Any, dt: float, n_sleepers: int, write: bool) -> dict[str, Any]:

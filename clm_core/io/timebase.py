@@ -12,7 +12,8 @@ This module is the only definition of :data:`NS`.
 
 from __future__ import annotations
 
-from typing import Any, Final
+import math
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -23,6 +24,8 @@ __all__ = [
     "INT32_MAX",
     "INT32_MIN",
     "NS",
+    "LagFigures",
+    "lag_figures",
     "ns_to_seconds",
     "ns_to_stamp",
     "seconds_to_ns",
@@ -175,3 +178,59 @@ def ns_to_seconds(t_ns: int) -> float:
         ``t_ns / 1e9`` [s] (float: microsecond resolution is lost beyond ~100 days).
     """
     return int(t_ns) / NS
+
+
+class LagFigures(NamedTuple):
+    """Median, 99th percentile and maximum of a set of lags [s] (NaN for none): the suite's one lag summary.
+
+    Attributes
+    ----------
+    count : int
+        Lags summarised.
+    median_s, p99_s, max_s : float
+        Median, 99th percentile (linear interpolation, ``numpy.percentile``)
+        and largest lag [s].
+    """
+
+    count: int
+    median_s: float
+    p99_s: float
+    max_s: float
+
+    def named(self, prefix: str = "lag") -> dict[str, float]:
+        """The figures as ``{prefix}_median_s``, ``{prefix}_p99_s``, ``{prefix}_max_s`` (``summary.json`` keys)."""
+        return {f"{prefix}_median_s": self.median_s, f"{prefix}_p99_s": self.p99_s, f"{prefix}_max_s": self.max_s}
+
+
+def lag_figures(lags_ns: ArrayLike, received_ns: ArrayLike | None = None) -> LagFigures:
+    """The lag figures of lags in integer nanoseconds, or of receive times against stamps.
+
+    Parameters
+    ----------
+    lags_ns : array_like of int
+        Lags [ns]; with ``received_ns``: the stamps [ns] of the messages.
+    received_ns : array_like of int, optional
+        When each message (or its answer) was received [ns], on the stamps'
+        clock: the lags are ``received_ns - lags_ns``.
+
+    Returns
+    -------
+    LagFigures
+        In seconds; NaN figures when there are no lags.
+
+    Examples
+    --------
+    >>> lag_figures([1_000_000, 2_000_000, 4_000_000])
+    LagFigures(count=3, median_s=0.002, p99_s=0.00396, max_s=0.004)
+    >>> lag_figures([10, 20], received_ns=[1_000_010, 3_000_020]).named()
+    {'lag_median_s': 0.002, 'lag_p99_s': 0.00298, 'lag_max_s': 0.003}
+    >>> lag_figures([]).count, math.isnan(lag_figures([]).median_s)
+    (0, True)
+    """
+    a = np.asarray(lags_ns, dtype=np.int64).ravel()
+    if received_ns is not None:
+        a = np.asarray(received_ns, dtype=np.int64).ravel() - a
+    if not a.size:
+        return LagFigures(0, math.nan, math.nan, math.nan)
+    s = a / NS
+    return LagFigures(int(s.size), float(np.median(s)), float(np.percentile(s, 99)), float(s.max()))

@@ -67,3 +67,25 @@ def test_seconds() -> None:
             seconds_to_ns_array([0.0, bad])
     with pytest.raises(MessageError):
         seconds_to_ns_array([1e10])
+
+
+def test_lag_figures_against_sorting_by_hand() -> None:
+    """The one lag summary: median and 99th percentile by sorting (linear interpolation between order statistics),
+    the maximum, in seconds; receive times against stamps give the same figures as their differences."""
+    from clm_core.io.timebase import lag_figures
+
+    rng = np.random.default_rng(7)
+    lags = rng.integers(50_000, 9_000_000, size=1001)  # [ns]
+    srt = np.sort(lags) / 1e9
+    # 1001 values: the median is the 501st; p99 is at rank 0.99 * 1000 = 990 exactly
+    f = lag_figures(lags)
+    assert f.count == 1001
+    assert f.median_s == pytest.approx(srt[500], rel=1e-15)
+    assert f.p99_s == pytest.approx(srt[990], rel=1e-15)
+    assert f.max_s == srt[-1]
+    stamps = rng.integers(0, 10**18, size=lags.size)
+    assert lag_figures(stamps, received_ns=stamps + lags) == f
+    assert f.named("vehicle_lag") == {"vehicle_lag_median_s": f.median_s, "vehicle_lag_p99_s": f.p99_s,
+                                      "vehicle_lag_max_s": f.max_s}
+    empty = lag_figures(np.zeros(0, dtype=np.int64))
+    assert empty.count == 0 and all(np.isnan([empty.median_s, empty.p99_s, empty.max_s]))
