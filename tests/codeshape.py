@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import ast
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -116,12 +116,18 @@ def imports() -> Iterator[Import]:
         yield from _visit(module, path.name == "__init__.py", _parse(path), False, False)
 
 
-def upward_imports() -> list[Import]:
-    """The imports of a unit of a higher layer by one of a lower layer (TYPE_CHECKING-only imports excepted)."""
+def probe_imports(module: str, source: str) -> list[Import]:
+    """The clm_core imports of ``source`` as if it were the module ``module`` (tests of the scan)."""
+    return list(_visit(module, False, ast.parse(source), False, False))
+
+
+def upward_imports(found: Iterable[Import] | None = None) -> list[Import]:
+    """The imports of a unit of a higher layer by one of a lower layer: at import time, inside functions
+    (lazy) and under ``TYPE_CHECKING`` (``type_only``) alike."""
     out = []
-    for imp in imports():
+    for imp in imports() if found is None else found:
         src, dst = unit_of(imp.module), unit_of(imp.target)
-        if not src or not dst or src == dst or imp.type_only:
+        if not src or not dst or src == dst:
             continue
         if layer_of(dst) > layer_of(src):
             out.append(imp)
@@ -215,7 +221,7 @@ def long_modules(limit: int = 700) -> list[tuple[str, int]]:
 
 if __name__ == "__main__":
     ups = upward_imports()
-    print(f"upward imports: {len(ups)}")
+    print(f"upward imports: {len(ups)} ({sum(not i.type_only for i in ups)} at run time)")
     for i in ups:
         print("  ", i)
     ri = reach_ins()
