@@ -193,7 +193,7 @@ def answer_lags(stamps: list[int], recv: list[int]) -> dict[str, float]:
     lag = (rv - st) / 1e9
     first = (st - st[0] < NS) if st.size else np.zeros(0, dtype=bool)
     whole, start = lag_figures(st, received_ns=rv), lag_figures(st[first], received_ns=rv[first])
-    return {"answers": float(whole.count), **whole.named(), "over_5ms": float((lag > 5e-3).sum()),
+    return {"answers": float(whole.n), **whole.named(), "over_5ms": float((lag > 5e-3).sum()),
             "over_20ms": float((lag > 20e-3).sum()), "first_second_median_s": start.median_s,
             "first_second_max_s": start.max_s}
 

@@ -185,14 +185,14 @@ class LagFigures(NamedTuple):
 
     Attributes
     ----------
-    count : int
+    n : int
         Lags summarised.
     median_s, p99_s, max_s : float
         Median, 99th percentile (linear interpolation, ``numpy.percentile``)
         and largest lag [s].
     """
 
-    count: int
+    n: int
     median_s: float
     p99_s: float
     max_s: float
@@ -221,10 +221,10 @@ def lag_figures(lags_ns: ArrayLike, received_ns: ArrayLike | None = None) -> Lag
     Examples
     --------
     >>> lag_figures([1_000_000, 2_000_000, 4_000_000])
-    LagFigures(count=3, median_s=0.002, p99_s=0.00396, max_s=0.004)
+    LagFigures(n=3, median_s=0.002, p99_s=0.00396, max_s=0.004)
     >>> lag_figures([10, 20], received_ns=[1_000_010, 3_000_020]).named()
     {'lag_median_s': 0.002, 'lag_p99_s': 0.00298, 'lag_max_s': 0.003}
-    >>> lag_figures([]).count, math.isnan(lag_figures([]).median_s)
+    >>> lag_figures([]).n, math.isnan(lag_figures([]).median_s)
     (0, True)
     """
     a = np.asarray(lags_ns, dtype=np.int64).ravel()

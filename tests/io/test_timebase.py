@@ -79,7 +79,7 @@ def test_lag_figures_against_sorting_by_hand() -> None:
     srt = np.sort(lags) / 1e9
     # 1001 values: the median is the 501st; p99 is at rank 0.99 * 1000 = 990 exactly
     f = lag_figures(lags)
-    assert f.count == 1001
+    assert f.n == 1001
     assert f.median_s == pytest.approx(srt[500], rel=1e-15)
     assert f.p99_s == pytest.approx(srt[990], rel=1e-15)
     assert f.max_s == srt[-1]
@@ -88,4 +88,4 @@ def test_lag_figures_against_sorting_by_hand() -> None:
     assert f.named("vehicle_lag") == {"vehicle_lag_median_s": f.median_s, "vehicle_lag_p99_s": f.p99_s,
                                       "vehicle_lag_max_s": f.max_s}
     empty = lag_figures(np.zeros(0, dtype=np.int64))
-    assert empty.count == 0 and all(np.isnan([empty.median_s, empty.p99_s, empty.max_s]))
+    assert empty.n == 0 and all(np.isnan([empty.median_s, empty.p99_s, empty.max_s]))
