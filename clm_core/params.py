@@ -514,11 +514,3 @@ PARAMETER_DOCS: Mapping[str, tuple[str, str, str]] = {
     "kc": ("soil", "N/m", "CLM coupling stiffness k_c between neighbouring areas"),
     "dc": ("soil", "N s/m", "CLM coupling damping d_c (normally negative, Sec. 4.2)"),
 }
-
-
-def parameter_values(params: ModelParams) -> dict[str, float]:
-    """All scalar parameters of ``params`` by name (soil ones the model does not use are 0)."""
-    out = {f.name: float(getattr(params.rail, f.name)) for f in fields(RailParams)}
-    out.update({f.name: float(getattr(params.track, f.name)) for f in fields(TrackParams)})
-    out.update({n: float(getattr(params.soil, n)) for n in SOIL_NAMES})
-    return out

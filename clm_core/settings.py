@@ -27,7 +27,7 @@ reads this table.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar, cast
 
@@ -498,11 +498,6 @@ def setting(name: str) -> Setting[Any]:
     if model is not None:
         return model
     raise KeyError(f"unknown setting {name!r}; known: {', '.join(sorted(SETTINGS))}")
-
-
-def defaults(names: Iterable[str] | None = None) -> dict[str, Any]:
-    """``{name: default}`` of the named settings (all of them by default)."""
-    return {n: setting(n).default for n in (SETTINGS if names is None else names)}
 
 
 def _model_parameter_settings() -> dict[str, Setting[float]]:

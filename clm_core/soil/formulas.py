@@ -18,20 +18,6 @@ from clm_core.profile import Layer
 from clm_core.soil.chain import ChainSoil, chain_values
 
 
-def impedance_lysmer(w: ArrayLike, mf: float, kf: float, df: float) -> NDArray[np.complex128]:
-    """Vertical impedance of Lysmer's analogue, Eq. (3): K_v = k_f - w^2 m_f + j w d_f [N/m].
-
-    Parameters
-    ----------
-    w : array_like
-        Circular frequency [rad/s].
-    mf, kf, df : float
-        Added mass [kg], stiffness [N/m], dashpot [N s/m].
-    """
-    w = np.asarray(w, dtype=float)
-    return np.asarray(kf - w**2 * mf + 1j * w * df, dtype=np.complex128)
-
-
 def sum_impedances(s: ArrayLike, soil: ChainSoil) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
     """The CLM impedances over the total and the alternating sum, Eq. (16) and (18), at Laplace s [N/m].
 
@@ -204,6 +190,8 @@ def layer_resonances(thickness: float, c: float, n_max: int = 3) -> NDArray[np.f
         Layer thickness h [m] (the paper writes d).
     c : float
         Body-wave speed (c_p or c_s) of the layer [m/s].
+    n_max : int
+        Resonances returned (n = 1 .. n_max).
     """
     if thickness <= 0 or c <= 0:
         raise ParameterError(f"layer_resonances: thickness = {thickness}, c = {c}: both must be > 0")

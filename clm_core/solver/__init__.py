@@ -93,7 +93,7 @@ module                 contents
 ``_kernels``           numba kernels (``cache=True``) and their typed inputs
                        (:class:`~clm_core.solver._kernels.StepArgs`)
 ``_frame_kernel``      the kernel of the per-frame path and its typed inputs
-                       (:class:`~clm_core.solver._frame_kernel.FrameArgs`)
+                       (:class:`~clm_core.solver._frame_kernel.FrameLoads`, ...)
 =====================  =========================================================
 
 Per-sleeper overrides are applied in one place, :class:`clm_core.track.SleeperValues`.

@@ -39,10 +39,12 @@ frame's response fails its check
 (:meth:`clm_core.solver.TrackSimulator.advance_frames`) moves the window and
 resumes, or restores the state.
 
-The inputs travel in one typed structure, :class:`FrameArgs`; the operator
-and state are the :class:`~clm_core.solver._kernels.StepOperator` and
-:class:`~clm_core.solver._kernels.StepState` of :func:`run_steps`. The
-kernel takes it as plain tuples (:meth:`FrameArgs.plain`) and rebuilds the
+The inputs travel as one tuple of six plain tuples: the fields of the
+operator and state (the :class:`~clm_core.solver._kernels.StepOperator` and
+:class:`~clm_core.solver._kernels.StepState` of :func:`run_steps`), of the
+:class:`FrameGeometry`, :class:`FrameLoads`, :class:`FrameBackup` and
+:class:`FrameOutputs`, in that order (built by
+:class:`clm_core.solver.frames.FrameRunner`). The kernel rebuilds the
 named tuples inside, at no cost: numba types a named tuple argument in Python
 at every call (10.3 us for this structure, ``timeit``, this machine), a plain
 tuple in C (3.1 us), which matters for a call per frame.
@@ -221,21 +223,6 @@ class FrameOutputs(NamedTuple):
     ctl_f: Array
 
 
-class FrameArgs(NamedTuple):
-    """Everything :func:`run_frames` reads and writes, in one typed structure."""
-
-    op: StepOperator
-    state: StepState
-    geo: FrameGeometry
-    loads: FrameLoads
-    backup: FrameBackup
-    out: FrameOutputs
-
-    def plain(self) -> tuple[tuple[object, ...], ...]:
-        """The structure as plain tuples, the argument of :func:`run_frames` (cheap to type at a call)."""
-        return tuple(tuple(x) for x in self)
-
-
 @njit(cache=True, inline="always")
 def check_values(pos, force, speed, a, b, sa, sb, lim):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """The first value rule broken by the frame at entries ``a .. b - 1`` (speeds ``sa .. sb - 1``).
@@ -367,9 +354,9 @@ def run_frames(a):  # type: ignore[no-untyped-def]  # pragma: no cover - compile
     Parameters
     ----------
     a : tuple
-        :meth:`FrameArgs.plain`: operator, state (updated in place),
-        geometry, frames, backup and outputs (see the module notes for when
-        it stops).
+        The fields of the operator, state (updated in place), geometry,
+        frames, backup and outputs as plain tuples (module notes: what it
+        takes, when it stops).
     """
     op = StepOperator(*a[0])
     st = StepState(*a[1])

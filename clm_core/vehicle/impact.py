@@ -14,8 +14,10 @@ damper M_t, K_t, C_t under the wheel):
               * [1 - C_t pi / (4 sqrt(K_t (M_u + M_t)))] * sqrt(K_t M_u)
 
 (as reproduced e.g. in Esveld 2001, "Modern Railway Track", Sec. 5.6).
-The formula belongs to a continuous, single-degree-of-freedom idea of the
-track, so the discrete CLM track must first be reduced to M_t, K_t, C_t:
+P1 (the short peak of the wheel on the rail's contact mass) is given for
+reference; P2 is computed here (:func:`jenkins_p2`). The formula belongs to
+a continuous, single-degree-of-freedom idea of the track, so the discrete
+CLM track must first be reduced to M_t, K_t, C_t:
 :func:`equivalent_track` fits K_t - w^2 M_t + j w C_t to the track's point
 dynamic stiffness 1 / H(w) (direct receptance of the assembled model) over a
 low-frequency band around the P2 resonance.
@@ -72,9 +74,17 @@ def point_dynamic_stiffness(
 
     Parameters
     ----------
+    params : ModelParams
+        The track–soil model.
+    f : array_like
+        Frequencies [Hz].
     position : {'sleeper', 'midspan', 'average'}
         Load above the central sleeper, at mid-span after it, or the mean of
         the two dynamic stiffnesses (a wheel sees both).
+    n_sleepers : int
+        Sleepers of the assembled track, centred on the load.
+    elements_per_bay : int
+        Rail elements per sleeper bay.
     """
     sysm = assemble(params, n_sleepers, elements_per_bay, first_sleeper=-(n_sleepers // 2))
     d = params.track.spacing
@@ -136,12 +146,3 @@ def jenkins_p2(P0: float, two_alpha: float, V: float, Mu: float, track: Equivale
         * (1.0 - Ct * math.pi / (4.0 * math.sqrt(Kt * (Mu + Mt)))) * math.sqrt(Kt * Mu)
     )
 
-
-def jenkins_p1(P0: float, two_alpha: float, V: float, Mu: float, KH: float, me: float) -> float:
-    """Jenkins et al. (1974) P1 force [N]; K_H linearised Hertz stiffness [N/m], m_e effective rail mass [kg]."""
-    return float(P0 + two_alpha * V * math.sqrt(KH * me / (1.0 + me / Mu)))
-
-
-def linearised_hertz_stiffness(P0: float, ch: float) -> float:
-    """dP/ddelta at the static load: 1.5 C_H^(2/3) P0^(1/3) [N/m]."""
-    return float(1.5 * ch ** (2.0 / 3.0) * P0 ** (1.0 / 3.0))

@@ -443,11 +443,6 @@ class Irregularity:
         if self.lead_in < 0:
             raise ParameterError(f"lead_in = {self.lead_in:g} m: must be >= 0")
 
-    @property
-    def is_smooth(self) -> bool:
-        """True if there is no irregularity at all."""
-        return self.profile is None and not self.defects and not self.flats
-
     def wheel_irregularity(self, x: Array, x0: Array, wheel_radius: Array) -> Array:
         """r [m] under each wheel at positions ``x`` (n_t, n_w), wheels started at ``x0`` (n_w,).
 

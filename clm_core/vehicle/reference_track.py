@@ -96,7 +96,6 @@ class FixedTrack:
         self._B: Array | None = None
         self._X = np.zeros((n, 0))
         self._u_free = np.zeros(n)
-        self._P = np.zeros(0)
         self._pk_force = np.full(s.n_sleepers, -np.inf)
 
     # ---------------------------------------------------------------- helpers
@@ -155,7 +154,7 @@ class FixedTrack:
             self.a = np.zeros(n)  # massless DOFs aside, the load is applied from the next step
         else:
             raise ParameterError(f"state = {state!r}: one of 'static', 'rest'")
-        self._pos, self._B, self._P = x, B, f
+        self._pos, self._B = x, B
         self._pk_force = self.system.ballast_force(self.u, self.v)
 
     def begin_step(self, positions_next: ArrayLike) -> tuple[Array, Array, Array]:
@@ -186,7 +185,6 @@ class FixedTrack:
         v_new = (2.0 / dt) * (u_new - self.u) - self.v
         a_new = (4.0 / dt**2) * (u_new - self.u) - (4.0 / dt) * self.v - self.a
         self.u, self.v, self.a = u_new, v_new, a_new
-        self._P = P
         self.t += dt
         np.maximum(self._pk_force, self.system.ballast_force(self.u, self.v), out=self._pk_force)
 

@@ -30,9 +30,6 @@ from clm_core.vehicle.coupled import CoupledResult, CoupledSimulation
 from clm_core.vehicle.multibody import Train, build_train
 from clm_core.vehicle.presets import load_vehicle
 
-#: Default distance over which the rail profile is ramped in [m] (the ``lead_in`` setting).
-DEFAULT_LEAD_IN: float = settings.LEAD_IN.default  # type: ignore[assignment]
-
 
 def _d(s: settings.Setting[Any]) -> Any:
     return s.default
