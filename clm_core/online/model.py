@@ -154,6 +154,23 @@ class OnlineTrackModel:
         Bad sizes, time step, ``max_gap``, ``wheel_ids`` (not integers) or policy.
     StabilityError
         A parameter set whose time integration would not be stable.
+
+    Examples
+    --------
+    Two wheels 3 m apart at 30 m/s, a frame every millisecond (the first
+    frame starts the state; stamps in integer nanoseconds):
+
+    >>> from clm_core.online import OnlineTrackModel, Reason, WheelFrame
+    >>> from clm_core.params import load_model
+    >>> model = OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=41)
+    >>> frames = [WheelFrame(10**9 + k * 10**6, [1, 2], [30.0 + 0.03 * k, 27.0 + 0.03 * k], [85e3, 85e3])
+    ...           for k in range(5)]
+    >>> out = model.process_batch(frames)
+    >>> [r.stamp_ns - 10**9 for r in out], model.stats.steps  # 10 steps of 0.1 ms per frame
+    ([0, 1000000, 2000000, 3000000, 4000000], 40)
+    >>> bad = model.process_batch([WheelFrame(10**9 + 5 * 10**6, [1, 2], [30.15, 27.15], [85e3, float("nan")])])
+    >>> bad[0].reason is Reason.NON_FINITE, model.stats.steps  # refused, nothing changed
+    (True, 40)
     """
 
     def __init__(

@@ -189,6 +189,21 @@ def chain_response(
     ParameterError
         Bad ``n_areas`` or ``loaded``, an empty, not 1-D or non-finite ``s``, or D(s) singular at some s (e.g. an
         undamped resonance or a zero stiffness at s = 0).
+
+    Examples
+    --------
+    One area alone is Lysmer's analogue: 1 / k_f at s = 0 (Eq. 7); a chain
+    loaded at its centre answers symmetrically.
+
+    >>> import numpy as np
+    >>> from clm_core.params import load_soil
+    >>> soil = load_soil("mevergnies")  # CLM soil, paper Table 1
+    >>> X, _ = chain_response(soil, 1, [0.0])
+    >>> bool(np.isclose(X[0, 0], 1 / soil.kf, rtol=1e-12))
+    True
+    >>> X, _ = chain_response(soil, 41, laplace([0.0, 50.0]))
+    >>> X.shape, bool(np.allclose(X, X[:, ::-1])), bool(abs(X[0, 20]) > abs(X[0, 21]) > 0)
+    ((2, 41), True, True)
     """
     mf, kf, df, kc, dc = chain_values(soil)
     n = odd_count("n_areas", n_areas)

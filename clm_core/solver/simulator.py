@@ -95,6 +95,26 @@ class TrackSimulator:
         Bad sizes, time step or per-sleeper values.
     StabilityError
         Damping matrix not positive semi-definite somewhere on the line.
+
+    Examples
+    --------
+    One 100 kN wheel from static equilibrium at x = 0, then 50 ms at 80 m/s
+    (the window follows it):
+
+    >>> from clm_core.params import load_model
+    >>> from clm_core.solver import TrackSimulator
+    >>> sim = TrackSimulator(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=31)
+    >>> sim.initialize([0.0], [100e3])
+    >>> print(f"{sim.snapshot().wheel_deflection[0] * 1e3:.3f} mm")  # static rail deflection, positive down
+    1.336 mm
+    >>> sim.advance(0.05, ([4.0], [100e3]))  # positions and forces at t_end, interpolated in between
+    >>> sim.steps, round(sim.t, 9), sim.window
+    (500, 0.05, (-13, 31))
+    >>> cp = sim.checkpoint()
+    >>> sim.advance(0.06, ([4.8], [100e3]))
+    >>> sim.rollback(cp)  # back to t = 0.05 s exactly
+    >>> sim.steps
+    500
     """
 
     def __init__(

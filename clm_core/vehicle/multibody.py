@@ -528,6 +528,10 @@ class VehicleNewmark:
             Hertz constants [N/m^1.5].
         delta : (n_w,) array
             Start value of the compressions [m] (the previous step's).
+        tol : float
+            Convergence tolerance of the Newton iteration on the contact [m].
+        maxit : int
+            Most Newton iterations.
 
         Returns
         -------
