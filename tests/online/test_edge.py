@@ -31,6 +31,7 @@ from clm_core.online import (
     OnlineTrackModel,
     Reason,
     Rejected,
+    WheelFrame,
     answer,
     model_params,
 )
@@ -71,7 +72,8 @@ def _by_hand(raws: list[bytes], frame_id: str) -> tuple[OnlineTrackModel, list[t
                              accept_new_wheels=False, lead_sleepers=None,
                              policy=InputPolicy.from_settings({n: NODE.get(n, setting(n).default)
                                                                for n in ONLINE_POLICY}))
-    frames, pre = [], []
+    frames: list[WheelFrame] = []
+    pre: list[Rejected | None] = []
     for raw in raws:
         try:
             frames.append(frame_from_cdr(raw))
