@@ -110,11 +110,19 @@ frame, interpolated from this one, would be refused).
 from __future__ import annotations
 
 from clm_core.online.edge import Answer, answer, decode, respond
-from clm_core.online.model import MODEL_SETTINGS, PARAMS_SETTINGS, RUN_FRAMES, OnlineTrackModel, model_params
+from clm_core.online.model import (
+    FACTORY_SETTINGS,
+    MODEL_SETTINGS,
+    PARAMS_SETTINGS,
+    RUN_FRAMES,
+    OnlineTrackModel,
+    model_params,
+)
 from clm_core.online.policy import InputPolicy, Timeline
 from clm_core.online.records import OnlineStats, Reason, Rejected, ResponseFrame, WheelFrame
 
 __all__ = [
+    "FACTORY_SETTINGS",
     "MODEL_SETTINGS",
     "PARAMS_SETTINGS",
     "RUN_FRAMES",

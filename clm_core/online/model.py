@@ -49,6 +49,8 @@ MODEL_SETTINGS: tuple[str, ...] = ("dt", "n_sleepers", "elements_per_bay", "lead
                                    "accept_new_wheels", "initial_state", *ONLINE_POLICY)
 #: The run settings of the parameter set (:func:`model_params`; ``<section>.<name>`` overrides besides).
 PARAMS_SETTINGS: tuple[str, ...] = ("track", "soil", "model", "params_file")
+#: Every run setting :meth:`OnlineTrackModel.from_settings` reads: what a node declares and hands it.
+FACTORY_SETTINGS: tuple[str, ...] = (*PARAMS_SETTINGS, *MODEL_PARAMETERS, *MODEL_SETTINGS)
 _F8, _I8 = np.dtype(np.float64), np.dtype(np.int64)
 
 
@@ -648,4 +650,4 @@ class OnlineTrackModel:
                                  p.positions.copy(), w[0, a:b], w[1, a:b], resynced)
 
 
-__all__ = ["MODEL_SETTINGS", "PARAMS_SETTINGS", "RUN_FRAMES", "OnlineTrackModel", "model_params"]
+__all__ = ["FACTORY_SETTINGS", "MODEL_SETTINGS", "PARAMS_SETTINGS", "RUN_FRAMES", "OnlineTrackModel", "model_params"]

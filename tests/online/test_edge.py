@@ -148,6 +148,19 @@ def test_factory_carries_every_model_setting_and_renewed_keeps_them() -> None:
     assert OnlineTrackModel.from_settings().settings == {n: setting(n).default for n in MODEL_SETTINGS}
 
 
+def test_every_setting_the_factory_reads_is_a_run_setting() -> None:
+    """FACTORY_SETTINGS (what a node declares) are settings of the schema, each once; a mapping of all of them at
+    their ROS values (stand-ins for unset) builds the default model."""
+    from clm_core.online import FACTORY_SETTINGS, PARAMS_SETTINGS
+
+    assert len(set(FACTORY_SETTINGS)) == len(FACTORY_SETTINGS)
+    assert set(PARAMS_SETTINGS) | set(MODEL_SETTINGS) <= set(FACTORY_SETTINGS)
+    ros = {name: setting(name).to_ros() for name in FACTORY_SETTINGS}
+    model = OnlineTrackModel.from_settings(ros)
+    assert model.settings == OnlineTrackModel.from_settings().settings
+    assert model.params == load_model("mevergnies", "mevergnies", "clm")
+
+
 def test_model_params_reads_presets_overrides_and_ros_stand_ins() -> None:
     ref = load_model("mevergnies", "mevergnies", "clm", {"kb": 60e6})
     assert model_params(NODE) == ref
