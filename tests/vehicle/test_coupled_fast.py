@@ -35,12 +35,19 @@ def _both(**kw: object) -> tuple[CoupledResult, CoupledResult]:
     return fast, slow
 
 
-def _assert_same(fast: CoupledResult, slow: CoupledResult) -> dict[str, float]:
-    """Every history equal to RTOL relative to its largest magnitude; NaN pattern and integers identical."""
+def _assert_same(fast: CoupledResult, slow: CoupledResult, iteration_slack: int = 0) -> dict[str, float]:
+    """Every history equal to RTOL relative to its largest magnitude; NaN pattern and integers identical.
+
+    ``iteration_slack``: how far the Newton iteration counts may differ. At rest the contact residual
+    sits at rounding level, on either side of the 1e-14 tolerance depending on the order of the sums,
+    so one path may take one more (no-op) iteration than the other.
+    """
     np.testing.assert_array_equal(fast.t, slow.t)
     np.testing.assert_array_equal(fast.sleeper_index, slow.sleeper_index)
     np.testing.assert_array_equal(fast.sleeper_x, slow.sleeper_x)
-    np.testing.assert_array_equal(fast.newton_iterations, slow.newton_iterations)
+    its_fast = np.asarray(fast.newton_iterations, dtype=np.int64)
+    diff = np.abs(its_fast - np.asarray(slow.newton_iterations, dtype=np.int64))
+    assert int(diff.max(initial=0)) <= iteration_slack, diff.max(initial=0)
     np.testing.assert_array_equal(fast.static_wheel_load, slow.static_wheel_load)
     errs = {}
     for f in FIELDS:
@@ -99,7 +106,7 @@ def test_fast_path_at_rest_and_custom_snapshots(params: ModelParams, power_car: 
     """V = 0 (no shift, chunks of the maximum length) and snapshot_every = 1."""
     fast, slow = _both(train=power_car, params=params, speed=0.0, dt=1e-4, x_start=20.0, snapshot_every=1,
                        duration=0.03)
-    _assert_same(fast, slow)
+    _assert_same(fast, slow, iteration_slack=1)
     np.testing.assert_allclose(fast.wheel_load, np.broadcast_to(fast.static_wheel_load, fast.wheel_load.shape),
                                rtol=1e-9)
     assert fast.t_out.size == fast.t.size
