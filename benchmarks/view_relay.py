@@ -50,6 +50,8 @@ from clm_ros.processes import hold_domain_id, ros_env  # noqa: E402
 from clm_ros.run_settings import RunSettings  # noqa: E402
 
 TOPIC = "/sleeper_response"
+#: What the client offers (the foxglove-sdk server speaks foxglove.sdk.v1; foxglove_bridge foxglove.websocket.v1).
+SUBPROTOCOLS: list[Any] = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 
 
 class Client(threading.Thread):
@@ -69,7 +71,7 @@ class Client(threading.Thread):
         from websockets.sync.client import connect
 
         try:
-            with connect(f"ws://127.0.0.1:{self.port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
+            with connect(f"ws://127.0.0.1:{self.port}", subprotocols=SUBPROTOCOLS,
                          max_size=None) as ws:
                 channels: dict[str, int] = {}
                 while not set(self.topics) <= set(channels):
@@ -137,19 +139,22 @@ def with_view(duration: float, out: Path, rate: float, topics: list[str]) -> dic
         finally:
             view.send_signal(signal.SIGINT)
             view.communicate(timeout=30)
-    counts = json.loads(stats.read_text())["counts"][TOPIC]
+    relay_stats = json.loads(stats.read_text())
+    counts = relay_stats["counts"][TOPIC]
+    taken = sum(c["received"] for c in relay_stats["counts"].values())
     period = round(1e9 / rate)
     expected = sorted({t // period for t in bag_stamps(Path(s["bag"]))})
     got = {t // period for t in client.stamps}
-    first = min(got) if got else None
-    after = [p for p in expected if first is not None and p >= first]
+    first_period = min(got) if got else None
+    after = [p for p in expected if first_period is not None and p >= first_period]
     return {
         "lag_median_ms": 1e3 * s["lag_median_s"], "lag_p99_ms": 1e3 * s["lag_p99_s"],
         "lag_max_ms": 1e3 * s["lag_max_s"], "expected": len(expected), "delivered": len(got & set(expected)),
         "fraction_pct": 100.0 * len(got & set(expected)) / max(len(expected), 1),
         "fraction_after_first_pct": 100.0 * len(got & set(after)) / max(len(after), 1),
         "missed_before_first": len(expected) - len(after),
-        "relay": counts, "other_channels_messages": client.other, "client_error": client.error,
+        "relay": counts, "relay_cpu_us_per_taken": 1e6 * relay_stats["cpu_s_watching"] / max(taken, 1),
+        "other_channels_messages": client.other, "client_error": client.error,
         "loadavg_1min": os.getloadavg()[0],
     }
 
@@ -185,8 +190,10 @@ def main() -> int:
                 print(f"run {i + 1} with clm view: delivered {r['delivered']}/{r['expected']} periods "
                       f"({r['fraction_pct']:.2f} %; from the first on {r['fraction_after_first_pct']:.2f} %, "
                       f"{r['missed_before_first']} before it); relay: {c['received']} taken, {c['relayed']} relayed, "
-                      f"{c['thinned']} thinned, {c['dropped']} dropped; demo lag median {r['lag_median_ms']:.2f} ms "
-                      f"p99 {r['lag_p99_ms']:.2f} ms max {r['lag_max_ms']:.2f} ms; load {r['loadavg_1min']:.2f}"
+                      f"{c['thinned']} thinned, {c['dropped']} dropped, CPU "
+                      f"{r['relay_cpu_us_per_taken']:.0f} us per message taken; "
+                      f"demo lag median {r['lag_median_ms']:.2f} ms p99 {r['lag_p99_ms']:.2f} ms max "
+                      f"{r['lag_max_ms']:.2f} ms; load {r['loadavg_1min']:.2f}"
                       + (f"; client error {r['client_error']}" if r["client_error"] else ""), flush=True)
             if not a.no_baseline:
                 b = baseline(a.duration, Path(tmp) / f"base{i}")

@@ -38,6 +38,8 @@ from clm_ros.errors import ClmRosError  # noqa: E402
 from clm_ros.view import Handoff, Thinner, check_rate, parse_topics  # noqa: E402
 
 TOPIC = "/sleeper_response"
+#: What the client offers (the foxglove-sdk server speaks foxglove.sdk.v1; foxglove_bridge foxglove.websocket.v1).
+SUBPROTOCOLS: list[Any] = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 RATE = 100.0
 N_SLEEPERS = 5
 #: Stamp of message k [ns]: 1 ms apart from t = 2 s.
@@ -197,7 +199,7 @@ def test_view_relays_on_demand(ros_python: Any, ros_env: dict[str, str], ros_dom
     received: list[tuple[int, Any]] = []
     try:
         with websockets_sync.connect(f"ws://127.0.0.1:{port}",
-                                     subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
+                                     subprotocols=SUBPROTOCOLS,
                                      max_size=None) as ws:
             assert ws.subprotocol in ("foxglove.sdk.v1", "foxglove.websocket.v1")
             channels: dict[str, dict[str, Any]] = {}

@@ -28,6 +28,8 @@ def register(sub: Any) -> None:
                         f"{DEFAULT_RATE:g}; 0: every message)")
     p.add_argument("--log-period", type=float, default=10.0,
                    help="seconds between two lines of counts while messages flow (default 10; 0: only at exit)")
+    p.add_argument("--nice", type=int, default=10,
+                   help="niceness added to the relay's process, 0 to 19 (default 10: the nodes get the CPU first)")
     p.add_argument("--stats", default=None, metavar="FILE", help="write the counts at exit to FILE (JSON)")
 
 
@@ -43,5 +45,5 @@ def run(args: argparse.Namespace) -> int:
     from clm_ros.view import parse_topics, run_view
 
     run_view(parse_topics(args.topics), args.domain_id, args.rate, host=args.host, port=args.port,
-             log_period=args.log_period, stats=args.stats)
+             log_period=args.log_period, stats=args.stats, nice=args.nice)
     return 0
