@@ -201,7 +201,7 @@ def test_view_relays_on_demand(ros_python: Any, ros_env: dict[str, str], ros_dom
         with websockets_sync.connect(f"ws://127.0.0.1:{port}",
                                      subprotocols=SUBPROTOCOLS,
                                      max_size=None) as ws:
-            assert ws.subprotocol in ("foxglove.sdk.v1", "foxglove.websocket.v1")
+            assert ws.subprotocol == "foxglove.sdk.v1"  # the only one foxglove-sdk accepts (HTTP 400 for the other)
             channels: dict[str, dict[str, Any]] = {}
             end = time.monotonic() + 30
             while len(channels) < 6 and time.monotonic() < end:
