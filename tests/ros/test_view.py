@@ -37,6 +37,7 @@ websockets_sync = pytest.importorskip("websockets.sync.client", reason="websocke
 from clm_ros.errors import ClmRosError  # noqa: E402
 from clm_ros.view import Handoff, Thinner, check_rate, parse_topics  # noqa: E402
 
+REPO = Path(__file__).resolve().parents[2]
 TOPIC = "/sleeper_response"
 #: What the client offers (the foxglove-sdk server speaks foxglove.sdk.v1; foxglove_bridge foxglove.websocket.v1).
 SUBPROTOCOLS: list[Any] = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
@@ -90,6 +91,20 @@ def test_parse_topics_and_rate() -> None:
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ClmRosError, match="--rate"):
             check_rate(bad)
+
+
+def test_layout_topics_are_offered() -> None:
+    """Every topic a panel of the shipped layout (config/foxglove_demo.json) shows is a channel of clm view."""
+    from clm_ros.view import DEFAULT_TOPICS
+
+    layout = json.loads((REPO / "ros2_ws" / "src" / "clm_ros" / "config" / "foxglove_demo.json").read_text())
+    shown: set[str] = set()
+    for cfg in layout["configById"].values():
+        shown |= {p["value"].partition(".")[0] for p in cfg.get("paths", [])}
+        shown |= set(cfg.get("topics", {}))
+        shown |= {cfg[k] for k in ("topicToRender", "topicPath") if k in cfg}
+    assert shown and shown <= set(DEFAULT_TOPICS), shown - set(DEFAULT_TOPICS)
+    assert "/sleeper_response" in DEFAULT_TOPICS and len(DEFAULT_TOPICS) == 6
 
 
 def test_thinner_and_handoff() -> None:

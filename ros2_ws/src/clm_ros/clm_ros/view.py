@@ -57,16 +57,11 @@ from typing import Any
 
 from clm_ros.errors import ClmRosError
 from clm_ros.launch_common import LIVE_VIEWS
+from clm_ros.launcher import TOPICS as RECORDED
 
-#: The demo's topics and their types: what ``clm view`` relays by default (config/foxglove_demo.json shows them).
-DEFAULT_TOPICS: dict[str, str] = {
-    "/wheel_loads": "clm_msgs/msg/WheelLoads",
-    "/sleeper_response": "clm_msgs/msg/SleeperResponse",
-    "/wheel_rail_response": "clm_msgs/msg/WheelRailResponse",
-    "/monitored_sleepers": LIVE_VIEWS["monitored_sleepers"],
-    "/track_markers": LIVE_VIEWS["track_markers"],
-    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
-}
+#: The demo's topics and their types: what ``clm view`` relays by default, those the demo records and its live
+#: views (config/foxglove_demo.json shows them).
+DEFAULT_TOPICS: dict[str, str] = {**RECORDED, **{f"/{t}": msgtype for t, msgtype in LIVE_VIEWS.items()}}
 
 #: How often the ROS thread takes what has arrived [s] (50 wake-ups per second; a view 20 ms late is live).
 POLL = 0.02
