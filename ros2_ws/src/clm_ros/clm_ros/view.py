@@ -253,6 +253,9 @@ class Relay:
         self.topics = dict(topics)
         self.counts = {t: TopicCounts() for t in self.topics}
         self._stamped = {t: starts_with_header(m) for t, m in self.topics.items()}
+        from clm_ros.bag_tools import message_class
+
+        self._classes = {t: message_class(m) for t, m in self.topics.items()}  # refused now, not when watched
         self._thin = {t: Thinner(rate) for t in self.topics}
         self._log = log
         self._log_period = log_period
@@ -280,7 +283,7 @@ class Relay:
                                                 message_backlog_size=BACKLOG)
         except Exception as exc:  # the SDK raises its own error types (port in use, bad host)
             self._shutdown_ros()
-            raise ClmRosError(f"clm view: cannot start the WebSocket server on {host}:{port}: {exc}") from None
+            raise ClmRosError(f"cannot start the WebSocket server on {host}:{port}: {exc}") from None
         self.port = int(self.server.port)
         self._sender = threading.Thread(target=self._send_loop, name="clm-view-sender", daemon=True)
         self._sender.start()
@@ -301,8 +304,6 @@ class Relay:
     def _reconcile(self) -> None:
         """Create the subscriptions of newly watched topics, destroy those nobody watches any more; every
         :data:`GRAPH_PERIOD` s re-create one whose reliability no longer suits its publishers."""
-        from clm_ros.bag_tools import message_class
-
         watched = self._listener.watched()
         for topic in [t for t in self._subs if t not in watched]:
             self._node.destroy_subscription(self._subs.pop(topic))
@@ -318,7 +319,7 @@ class Relay:
                 self._cpu0 = time.process_time()
             profile, self._reliability[topic] = self._qos(topic)
             self._subs[topic] = self._node.create_subscription(
-                message_class(self.topics[topic]), topic, lambda _raw: None, profile, raw=True)
+                self._classes[topic], topic, lambda _raw: None, profile, raw=True)
             if topic not in self._thin:
                 self._thin[topic] = Thinner(self.rate)
             self.counts[topic].subscribed += 1
