@@ -48,17 +48,18 @@ from clm_ros import interop
 
 domain_id, n, config, timeout, reliability = (int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], float(sys.argv[4]),
                                              sys.argv[5])
-hold = sys.argv[6] if len(sys.argv) > 6 else ""  # a file: write the result there, then wait to be killed
+min_matched = int(sys.argv[6])  # wheel-load writers the track node must say it has matched before we send
+hold = sys.argv[7] if len(sys.argv) > 7 else ""  # a file: write the result there, then wait to be killed
 PRIM = {"int32": T.int32, "uint32": T.uint32, "int64": T.int64, "uint64": T.uint64, "float64": T.float64,
         "float32": T.float32, "uint8": T.uint8, "int8": T.int8, "int16": T.int16, "uint16": T.uint16,
-        "bool": bool, "string": str}
+        "bool": bool, "string": str, "byte": T.byte}
 classes = {}
 
 def py_type(elem):
     kind, t = elem
     return PRIM[t] if kind == "base" else classes[t]
 
-for msgtype in interop.ordered(interop.MESSAGES):
+for msgtype in interop.ordered([*interop.MESSAGES, "diagnostic_msgs/msg/DiagnosticArray"]):
     ann = {}
     for name, kind, elem, size in interop.fields(msgtype):
         if kind == "base":
@@ -76,20 +77,40 @@ for msgtype in interop.ordered(interop.MESSAGES):
 Time, Header = classes["builtin_interfaces/msg/Time"], classes["std_msgs/msg/Header"]
 WheelLoad, WheelLoads = classes["clm_msgs/msg/WheelLoad"], classes["clm_msgs/msg/WheelLoads"]
 SleeperResponse = classes["clm_msgs/msg/SleeperResponse"]
+DiagnosticArray = classes["diagnostic_msgs/msg/DiagnosticArray"]
 
 domain = Domain(domain_id, config)  # kept: the configuration lives as long as this object
 dp = DomainParticipant(domain_id)
 policy = (Policy.Reliability.Reliable(max_blocking_time=duration(seconds=1)) if reliability == "reliable"
           else Policy.Reliability.BestEffort)
 qos = Qos(policy, Policy.Durability.Volatile, Policy.History.KeepLast(5000))
+answers_qos = Qos(Policy.Reliability.Reliable(max_blocking_time=duration(seconds=1)), Policy.Durability.Volatile,
+                  Policy.History.KeepLast(5000))
 writer = DataWriter(dp, Topic(dp, interop.dds_topic_name("/wheel_loads"), WheelLoads), qos=qos)
-reader = DataReader(dp, Topic(dp, interop.dds_topic_name("/sleeper_response"), SleeperResponse), qos=qos)
+reader = DataReader(dp, Topic(dp, interop.dds_topic_name("/sleeper_response"), SleeperResponse), qos=answers_qos)
+diagnostics = DataReader(dp, Topic(dp, interop.dds_topic_name("/diagnostics"), DiagnosticArray),
+                         qos=Qos(Policy.Reliability.Reliable(max_blocking_time=duration(seconds=1)),
+                                 Policy.Durability.Volatile, Policy.History.KeepLast(10)))
+
+def node_matched():
+    """What the track node last said in /diagnostics: how many wheel-load writers its reader has matched."""
+    said = -1
+    for d in diagnostics.take(N=10):
+        for st in d.status:
+            if "track-soil" in st.name:
+                said = max(said, *[int(kv.value) for kv in st.values if kv.key == "wheel_load_publishers_matched"])
+    return said
 
 t0 = time.monotonic()
+# both ends matched, and the node's own word that its reader has matched our writer (a sample written before
+# that is not delivered to it: volatile)
+said = -1
 while not (writer.get_publication_matched_status().current_count >= 1
-           and reader.get_subscription_matched_status().current_count >= 1):
+           and reader.get_subscription_matched_status().current_count >= 1 and said >= min_matched):
+    said = max(said, node_matched())
     if time.monotonic() - t0 > timeout:
-        print(json.dumps({"error": "the track node's endpoints were not matched", "after_s": timeout}))
+        print(json.dumps({"error": "the track node's endpoints were not matched", "after_s": timeout,
+                          "node_says_matched": said}))
         sys.exit(3)
     time.sleep(0.01)
 matched_s = time.monotonic() - t0
@@ -154,15 +175,16 @@ def _recipe_config() -> str:
 def test_cyclonedds_client_talks_to_track_node(ros_python: Any, ros_domain_id: int, reliability: str) -> None:
     """WheelLoads from Cyclone DDS to the Fast DDS track node and its answers back, in order, with their stamps.
 
-    Reliable: every answer. Best effort (the node serves a best-effort writer, ``best available``): in order, and
-    nearly all (loopback drops none in practice; the bound leaves room for a lost datagram, never for a broken
-    exchange).
+    The wheel loads reliable: every answer. Best effort (the node serves a best-effort writer, ``best available``):
+    in order, and nearly all (loopback drops none in practice; the bound leaves room for a lost datagram, never
+    for a broken exchange). The answers are read reliably in both cases.
     """
     pytest.importorskip("cyclonedds", reason="the cyclonedds Python package is not installed (pip install "
                                              "cyclonedds; wheels for CPython on manylinux x86_64)")
     node = ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.5"], name="track_node")
     res = ros_python.run(CLIENT, [str(ros_domain_id), str(N_MESSAGES), _recipe_config(),
-                                  str(ros_python.discovery_timeout), reliability], name="cyclone_client", timeout=180)
+                                  str(ros_python.discovery_timeout), reliability, "1"], name="cyclone_client",
+                          timeout=180)
     assert node.poll() is None, "the track node exited"
     out = json.loads(res.stdout.strip().splitlines()[-1])
     answers = out["answers"]
@@ -187,17 +209,23 @@ def test_cyclonedds_client_restarting_within_its_lease(ros_python: Any, ros_doma
 
     pytest.importorskip("cyclonedds", reason="the cyclonedds Python package is not installed")
     ros_python.spawn(NODE, ["--ros-args", "-p", "diagnostics_period:=0.5"], name="track_node")
-    args = [str(ros_domain_id), str(N_MESSAGES), _recipe_config(), str(ros_python.discovery_timeout), "reliable"]
+    args = [str(ros_domain_id), str(N_MESSAGES), _recipe_config(), str(ros_python.discovery_timeout), "reliable", "1"]
+    # the first client's lease 120 s (default 10 s): the second one surely starts within it, however loaded the machine
+    long_lease = _recipe_config().replace("<ParticipantIndex>auto</ParticipantIndex>",
+                                          "<ParticipantIndex>auto</ParticipantIndex>\n      "
+                                          "<LeaseDuration>120 s</LeaseDuration>")
+    assert "LeaseDuration" in long_lease
     done = tmp_path / "first.json"
-    first = ros_python.spawn(CLIENT, [*args, str(done)], name="cyclone_first")
+    first = ros_python.spawn(CLIENT, [*args[:2], long_lease, *args[3:], str(done)], name="cyclone_first")
     end = time.monotonic() + 120
     while not done.exists():
         assert first.poll() is None, f"the first client exited: {first.communicate()}"
         assert time.monotonic() < end, "the first client did not finish in 120 s"
         time.sleep(0.05)
     assert len(json.loads(done.read_text())["answers"]) == N_MESSAGES
-    os.kill(first.pid, signal.SIGKILL)  # no goodbye: the node keeps its writer until the lease (10 s) runs out
+    os.kill(first.pid, signal.SIGKILL)  # no goodbye: the node keeps its writer until the lease runs out
     first.wait()
-    res = ros_python.run(CLIENT, args, name="cyclone_second", timeout=180)
+    # the node still counts the dead client's writer: the second one waits until the node has matched both
+    res = ros_python.run(CLIENT, [*args[:5], "2"], name="cyclone_second", timeout=180)
     stamps = [a["stamp"] for a in json.loads(res.stdout.strip().splitlines()[-1])["answers"]]
     assert stamps == [5_000_000_000 + k * 1_000_000 for k in range(2, N_MESSAGES)]
