@@ -286,3 +286,22 @@ def test_view_relays_on_demand(ros_python: Any, ros_env: dict[str, str], ros_dom
     assert counts["received"] == counts["relayed"] + counts["thinned"] + counts["dropped"]
     assert counts["thinned"] >= counts["relayed"]  # ~1 kHz taken, 100 Hz kept
     assert os.path.getsize(stats) > 0
+
+
+def test_demo_with_view(tmp_path: Path) -> None:
+    """``clm demo --view 0``: the viewer starts in the demo's domain, serves, and stops with the demo (exit 0)."""
+    from clm_ros.processes import hold_domain_id, ros_env
+
+    for attempt in range(3):  # a free domain for the demo to hold itself; taken by another run meanwhile: another
+        with hold_domain_id() as dom:
+            pass
+        proc = subprocess.run(
+            [sys.executable, "-m", "clm_core.cli", "demo", "--out", str(tmp_path / f"demo{attempt}"), "--duration",
+             "0.2", "--domain", str(dom), "--view", "0"],
+            env=ros_env(dom), stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=300)
+        if f"ROS domain {dom} is in use" not in proc.stderr:
+            break
+    assert proc.returncode == 0, f"--- stdout\n{proc.stdout}\n--- stderr\n{proc.stderr}"
+    assert "clm view: Foxglove WebSocket server on ws://127.0.0.1:" in proc.stdout
+    assert f"(ROS domain {dom}," in proc.stdout
+    assert "clm view: at exit:" in proc.stdout, proc.stdout
