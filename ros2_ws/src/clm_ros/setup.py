@@ -56,6 +56,7 @@ setup(
             "demo = clm_ros.commands.demo:register",
             "fleet = clm_ros.commands.fleet:register",
             "replay = clm_ros.commands.replay:register",
+            "view = clm_ros.commands.view:register",
         ],
     },
 )

@@ -19,6 +19,8 @@ def register(sub: Any) -> None:
     p = add_command(sub, "demo", run, settings=NAMES)
     p.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
+    p.add_argument("--view", nargs="?", type=int, const=8765, default=None, metavar="PORT",
+                   help="also serve the run live to Foxglove (clm view on PORT, default 8765)")
     add_overwrite(p)
 
 
@@ -36,7 +38,14 @@ def run(args: argparse.Namespace) -> int:
     print(f"demo: ROS domain {args.domain_id}, discovery on loopback; watch it live from another terminal with "
           f"ROS_DOMAIN_ID={args.domain_id} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (topics /wheel_loads, "
           "/sleeper_response, /wheel_rail_response, /diagnostics)", flush=True)
-    s = run_demo(args.out, RunSettings.from_args(args), overwrite=args.overwrite)
+    viewer = _start_view(args.domain_id, args.view) if args.view is not None else None
+    try:
+        s = run_demo(args.out, RunSettings.from_args(args), overwrite=args.overwrite)
+    finally:
+        if viewer is not None:
+            from clm_ros.processes import stop_processes
+
+            stop_processes([viewer])
     counts = s["message_counts"]
     used = 100.0 * s["feedback_used"] / s["feedback_total"] if s["feedback_total"] else 0.0
     print(f"demo: {counts.get('/wheel_loads', 0)} wheel-load messages, {counts.get('/sleeper_response', 0)} "
@@ -50,3 +59,14 @@ def run(args: argparse.Namespace) -> int:
           f"rms wheel load {quantity(s['rms_wheel_load_N'], 'N')}")
     print(f"demo: bag {s['bag']}, plots and summary.json in {args.out}/")
     return 0
+
+
+def _start_view(domain_id: int, port: int) -> Any:
+    """``clm view`` in the demo's domain on ``port``, as a process of its own (its output on this terminal)."""
+    import subprocess
+    import sys
+
+    from clm_ros.processes import ros_env
+
+    return subprocess.Popen([sys.executable, "-m", "clm_core.cli", "view", "--domain", str(domain_id), "--port",
+                             str(port)], env=ros_env(domain_id), stdin=subprocess.DEVNULL)
