@@ -231,7 +231,8 @@ def pick_wheels(n_wheels: int, most: int = MAX_WHEEL_PANELS) -> list[int]:
 
 
 def wheel_panels(axs: Sequence[Axes], t: Array, P: Array, wheels: list[int], static: Array | None) -> None:
-    """One panel per wheel, same load scale: load [kN] over time, static load dashed, max/min in the title."""
+    """One panel per wheel, same load scale: load [kN] over time, static load dashed, max/min and the dynamic
+    factor (max / static) in the title."""
     for ax, i in zip(axs, wheels, strict=True):
         if ax is not axs[0]:
             ax.sharey(axs[0])
@@ -241,7 +242,9 @@ def wheel_panels(axs: Sequence[Axes], t: Array, P: Array, wheels: list[int], sta
             ax.axhline(static[i] / 1e3, color="0.25", ls="--", lw=0.8, label="static wheel load")
         ax.set_ylabel(f"wheel {i}\n[kN]")
         if np.isfinite(p).any():
-            ax.set_title(f"max {np.nanmax(p) / 1e3:.1f} kN, min {np.nanmin(p) / 1e3:.1f} kN", loc="right",
+            df = (f", dynamic factor max/static {np.nanmax(p) / static[i]:.3f}"
+                  if static is not None and static[i] > 0 else "")
+            ax.set_title(f"max {np.nanmax(p) / 1e3:.1f} kN, min {np.nanmin(p) / 1e3:.1f} kN{df}", loc="right",
                          fontsize=7.5, pad=2)
 
 
