@@ -130,7 +130,8 @@ class ThirdOctaveBands:
 _NOMINAL = np.array([1.0, 1.25, 1.6, 2.0, 2.5, 3.15, 4.0, 5.0, 6.3, 8.0])
 
 
-def _nominal(centre: Array) -> Array:
+def nominal_frequency(centre: Array) -> Array:
+    """Nominal centre frequencies (1, 1.25, 1.6, 2, 2.5, 3.15, 4, 5, 6.3, 8 x 10^k Hz) of exact band centres."""
     dec = np.floor(np.log10(centre) + 1e-9)
     mant = centre / 10.0**dec
     k = np.argmin(np.abs(np.log(mant[:, None] / _NOMINAL[None, :])), axis=1)
@@ -194,7 +195,7 @@ def third_octave_bands(
     inside = (which >= 0) & (f < upper[np.clip(which, 0, None)])
     ms = np.asarray(np.bincount(which[inside], weights=power[inside], minlength=nb.size)[: nb.size], dtype=np.float64)
     lines = np.bincount(which[inside], minlength=nb.size)[: nb.size].astype(np.int64)
-    return ThirdOctaveBands(centre=centre, lower=lower, upper=upper, nominal=_nominal(centre), mean_square=ms,
+    return ThirdOctaveBands(centre=centre, lower=lower, upper=upper, nominal=nominal_frequency(centre), mean_square=ms,
                             rms=np.sqrt(ms), total_mean_square=float(np.sum(power)), lines=lines)
 
 

@@ -638,7 +638,8 @@ def read_vehicle_history(path: str | Path, dense: bool = True) -> dict[str, Any]
 
 
 def write_coupled_history(res: CoupledResult, out: str | Path, csv_files: bool = True,
-                          on_file: Callable[[Path], None] | None = None) -> list[Path]:
+                          on_file: Callable[[Path], None] | None = None,
+                          window: tuple[IntArray, Array] | None = None) -> list[Path]:
     """Write a coupled vehicle run: ``vehicle_history.npz``, ``peaks.csv`` and, with ``csv_files``, the other CSVs.
 
     Parameters
@@ -652,12 +653,13 @@ def write_coupled_history(res: CoupledResult, out: str | Path, csv_files: bool =
         ``sleepers.csv`` (the window's sleepers at each snapshot) (module docstring).
     on_file : callable, optional
         Called with each file once written (progress of the writing phase).
+    window : (first, compact), optional - :func:`window_columns` of ``res.soil_force`` if the caller has it.
 
     Returns the files written (list of Path).
     """
     d = Path(out)
     tell = on_file or (lambda _p: None)
-    first_col, sf = window_columns(res.soil_force)
+    first_col, sf = window if window is not None else window_columns(res.soil_force)
     lo = int(res.sleeper_index[0]) if res.sleeper_index.size else 0
     cols = np.minimum(first_col[:, None] + np.arange(sf.shape[1])[None, :], max(res.sleeper_index.size - 1, 0))
     rd = np.take_along_axis(np.asarray(res.sleeper_rail_deflection, dtype=np.float64), cols, axis=1)

@@ -89,9 +89,9 @@ CAPTIONS: dict[str, str] = {
                        "envelope along the track, largest (red) and smallest (blue) force of every sleeper, the peak "
                        "sleeper marked; negative values are tensile ballast forces (the model's ballast spring "
                        "carries tension).",
-    "spectra.png": "Single-sided amplitude spectra of the dynamic part (static or mean value removed): 0-80 Hz on a "
-                   "linear axis (the band of ground-borne vibration, DIN 4150) and the whole range on log axes; "
-                   "dashed: the sleeper-passing frequency V/d.",
+    "spectra.png": "Single-sided amplitude spectra of the dynamic part (static or mean value removed): 0-80 Hz "
+                   "(the band of ground-borne vibration, DIN 4150) and 80-500 Hz on its own scale; dashed: the "
+                   "sleeper-passing frequency V/d.",
     "third_octave.png": "One-third-octave band rms of the dynamic part (base-10 bands from 1 Hz; shaded: 1-80 Hz).",
     "wheel_loads.png": "Wheel loads over time, one panel per wheel on one scale, static load dashed; each title gives "
                        "the largest and smallest load and the dynamic factor (largest / static).",

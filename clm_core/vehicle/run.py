@@ -353,8 +353,8 @@ def write_vehicle_outputs(res: CoupledResult, out: Path, csv_files: bool, title:
     from clm_core.io.plots import plot_vehicle_run
     from clm_core.peaks import sleeper_envelope
 
-    write_coupled_history(res, out, csv_files=csv_files, on_file=on_file)
     first, sf = window_columns(res.soil_force)
+    write_coupled_history(res, out, csv_files=csv_files, on_file=on_file, window=(first, sf))
     lo = int(res.sleeper_index[0]) if res.sleeper_index.size else 0
     env = sleeper_envelope(first + lo, sf, res.sleeper_index, res.peak_soil_force)
     plot_vehicle_run(res, out, title=title, envelope=env, on_file=on_file)

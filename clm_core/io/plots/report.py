@@ -6,8 +6,8 @@ Used by :func:`~clm_core.io.plots.plot_run` (moving loads),
 carry the same figures:
 
 - ``spectra.png``: single-sided amplitude spectra (:func:`clm_core.spectra.amplitude_spectrum`)
-  of the dynamic part of each record, 0-80 Hz on a linear axis (the band of
-  ground-borne vibration, DIN 4150) beside the whole range on log axes;
+  of the dynamic part of each record, 0-80 Hz (the band of ground-borne
+  vibration, DIN 4150) beside 80-500 Hz on its own scale (linear axes);
 - ``third_octave.png``: one-third-octave band rms (:func:`clm_core.spectra.third_octave_bands`);
 - ``soil_forces.png``: soil force over time of a few sleepers with the peak
   sleeper among them, and the envelope along the track (largest and
@@ -26,13 +26,13 @@ from matplotlib.axes import Axes
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array
-from clm_core.io.plots._base import legend, new_figure, save, style
+from clm_core.io.plots._base import decimate, figure_legend, legend, new_figure, save, style
 from clm_core.peaks import SleeperEnvelope
-from clm_core.spectra import amplitude_spectrum, third_octave_bands
+from clm_core.spectra import amplitude_spectrum, nominal_frequency, third_octave_bands
 
 #: Upper end of the linear spectrum panel [Hz] (ground-borne vibration band).
 F_EMPHASIS = 80.0
-#: Highest frequency drawn on the log panels [Hz].
+#: Highest frequency drawn on the right-hand panels [Hz].
 F_TOP = 500.0
 
 
@@ -87,7 +87,7 @@ def uniform(t: Array, y: Array) -> tuple[Array, float] | None:
 
 def plot_spectra(path: Path, quantities: Sequence[Quantity], title: str,
                  marks: Sequence[tuple[float, str]] = ()) -> Path:
-    """``spectra.png``: per quantity, amplitude spectra 0-80 Hz (linear) and the whole range (log axes).
+    """``spectra.png``: per quantity, amplitude spectra 0-80 Hz and 80-500 Hz (own scale), linear axes.
 
     ``marks``: (frequency [Hz], label) drawn as dashed verticals (e.g. the sleeper-passing frequency V/d).
     """
@@ -95,31 +95,33 @@ def plot_spectra(path: Path, quantities: Sequence[Quantity], title: str,
     with style():
         fig, axs = new_figure(max(1, len(rows)), 2, (10.0, 2.6 * max(1, len(rows)) + 0.8),
                               gridspec_kw={"width_ratios": [1.25, 1.0]})
+        colour = 0
         for (lo, hi), q in zip(axs, rows, strict=False):
             top = 0.0
-            for k, r in enumerate(q.records):
+            for r in q.records:
+                k, colour = colour, colour + 1
                 s = amplitude_spectrum(r.x, r.dt, r.reference)
                 f, a = s.frequency, s.amplitude * q.scale
                 top = max(top, float(f[-1]))
                 band = (f > 0) & (f <= F_EMPHASIS)
-                lo.plot(f[band], a[band], lw=0.8, color=f"C{k}", label=r.label)
-                keep = (f > 0) & (f <= F_TOP)
-                hi.loglog(f[keep], np.maximum(a[keep], 1e-30), lw=0.6, color=f"C{k}")
+                lo.plot(*decimate(f[band], a[band]), lw=0.8, color=f"C{k}", label=r.label)
+                keep = (f >= F_EMPHASIS) & (f <= F_TOP)
+                if keep.any():
+                    hi.plot(*decimate(f[keep], a[keep]), lw=0.6, color=f"C{k}")
             for fm, lab in marks:
                 for ax in (lo, hi):
-                    if 0 < fm <= (F_EMPHASIS if ax is lo else F_TOP):
-                        ax.axvline(fm, color="0.3", ls="--", lw=0.7, label=lab if ax is lo else None)
+                    if (0 < fm <= F_EMPHASIS) if ax is lo else (F_EMPHASIS < fm <= F_TOP):
+                        ax.axvline(fm, color="0.3", ls="--", lw=0.7, label=lab if ax is lo and q is rows[0] else None)
             lo.set_xlim(0.0, F_EMPHASIS)
-            hi.set_xlim(right=min(F_TOP, top) if top > 0 else F_TOP)
+            hi.set_xlim(F_EMPHASIS, min(F_TOP, top) if top > F_EMPHASIS else F_TOP)
             lo.set_ylabel(f"{q.name}\namplitude [{q.unit}]")
             hi.set_ylabel(f"amplitude [{q.unit}]")
             lo.set_title(f"{q.name}: 0-{F_EMPHASIS:g} Hz", fontsize=8.5)
-            hi.set_title(f"up to {min(F_TOP, top):.0f} Hz", fontsize=8.5)
-            legend(lo)
-        for ax in axs[-1]:
+            hi.set_title(f"{F_EMPHASIS:g}-{min(F_TOP, top):.0f} Hz (own scale)", fontsize=8.5)
+        for ax in axs.ravel():
             ax.set_xlabel("frequency [Hz]")
-        for ax in axs[:-1].ravel():
-            ax.set_xlabel("frequency [Hz]")
+        # one legend below the panels (outside every axes: nothing to move, one layout pass)
+        figure_legend(fig, list(axs[:, 0]))
         fig.suptitle(title + "\nsingle-sided amplitude spectra of the dynamic part (static or mean value removed)",
                      fontsize=9.5)
         return save(fig, path)
@@ -130,17 +132,26 @@ def plot_third_octave(path: Path, quantities: Sequence[Quantity], title: str, f_
     rows = [q for q in quantities if q.records]
     with style():
         fig, axs = new_figure(max(1, len(rows)), 1, (9.0, 2.7 * max(1, len(rows)) + 0.8))
+        colour = 0
         for ax, q in zip(axs[:, 0], rows, strict=False):
-            for k, r in enumerate(q.records):
+            lo_b, hi_b = 10**6, -(10**6)
+            for r in q.records:
+                k, colour = colour, colour + 1
                 b = third_octave_bands(r.x, r.dt, f_min=1.0, f_max=min(f_max, 0.5 / r.dt / 10 ** (1 / 20)),
                                        reference=r.reference)
                 rms = np.where(b.lines > 0, b.rms * q.scale, np.nan)  # a band without FFT line: not resolved
-                ax.plot(b.nominal, rms, "o-", ms=3, lw=0.9, color=f"C{k}", label=r.label)
-            ax.set_xscale("log")
-            ax.axvspan(1.0, F_EMPHASIS, color="0.9", zorder=0, lw=0)
+                # bands at equal spacing (a log-frequency axis), labelled by their nominal centres
+                band = np.round(10.0 * np.log10(b.centre / 1000.0)).astype(int)
+                ax.plot(band, rms, "o-", ms=3, lw=0.9, color=f"C{k}", label=r.label)
+                lo_b, hi_b = min(lo_b, int(band[0])), max(hi_b, int(band[-1]))
+            ticks = np.arange(lo_b, hi_b + 1)
+            ticks = ticks[ticks % 3 == 0]
+            ax.set_xticks(ticks, [f"{v:g}" for v in nominal_frequency(1000.0 * 10.0 ** (ticks / 10.0))])
+            ax.axvspan(-30.5, 10.0 * np.log10(F_EMPHASIS / 1000.0) + 0.5, color="0.9", zorder=0, lw=0)
+            ax.set_xlim(lo_b - 0.5, hi_b + 0.5)
             ax.set_xlabel("one-third-octave band centre frequency [Hz]")
             ax.set_ylabel(f"{q.name}\nband rms [{q.unit}]")
-            legend(ax)
+        figure_legend(fig, list(axs[:, 0]))
         fig.suptitle(title + f"\none-third-octave band rms of the dynamic part (shaded: 1-{F_EMPHASIS:g} Hz; bands "
                      "narrower than the record's line spacing left out)",
                      fontsize=9.5)
@@ -180,7 +191,8 @@ def plot_soil_forces(path: Path, series: Sequence[tuple[int, Array, Array]], pea
         a0, a1 = axs[:, 0]
         for k, (g, t, F) in enumerate(series):
             peak = g == peak_sleeper
-            a0.plot(t, F / 1e3, lw=1.3 if peak else 0.8, color="k" if peak else f"C{k}", zorder=3 if peak else 2,
+            a0.plot(*decimate(t, F / 1e3), lw=1.3 if peak else 0.8, color="k" if peak else f"C{k}",
+                    zorder=3 if peak else 2,
                     label=f"sleeper {g} (x = {g * spacing:.1f} m)" + (", peak" if peak else ""))
         a0.axhline(0.0, color="0.2", lw=0.6)
         a0.set_xlabel("time [s]")

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from clm_core.arrays import Array
 from clm_core.io.plots._base import (
+    decimate,
     figure_legend,
     legend,
     new_figure,
@@ -71,7 +72,7 @@ def plot_run(
                 col = g - first
                 ok = np.nonzero((col >= 0) & (col < sf.shape[1]))[0]
                 if ok.size:
-                    ax1.plot(t[ok], sf[ok, col[ok]] / 1e3, label=f"sleeper {g} (x = {g * spacing:.1f} m)")
+                    ax1.plot(*decimate(t[ok], sf[ok, col[ok]] / 1e3), label=f"sleeper {g} (x = {g * spacing:.1f} m)")
         ax1.set_xlabel("time [s]")
         ax1.set_ylabel("soil force under sleeper [kN]")
         if sleepers:
@@ -128,8 +129,10 @@ def plot_vehicle_run(res: CoupledResult, out: str | Path, title: str = "", envel
                            gridspec_kw={"height_ratios": [1.0] * len(wheels) + [1.2]})
         wheel_panels(list(axs[:-1, 0]), res.t, res.wheel_load, wheels, res.static_wheel_load)
         ax = axs[-1, 0]
-        ax.plot(res.t, res.irregularity[:, 0] * 1e3, color="C2", lw=0.8, label="irregularity r under wheel 0 (down +)")
-        ax.plot(res.t, res.rail_deflection[:, 0] * 1e3, color="C1", lw=0.8, label="rail deflection under wheel 0")
+        ax.plot(*decimate(res.t, res.irregularity[:, 0] * 1e3), color="C2", lw=0.8,
+                label="irregularity r under wheel 0 (down +)")
+        ax.plot(*decimate(res.t, res.rail_deflection[:, 0] * 1e3), color="C1", lw=0.8,
+                label="rail deflection under wheel 0")
         ax.set_ylabel("wheel 0\n[mm]")
         ax.set_xlabel("time [s]")
         figure_legend(fig, list(axs[:, 0]))
