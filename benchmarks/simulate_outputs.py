@@ -11,8 +11,10 @@ prints, for each run and the worst:
   stepping alone, simulated time / ``real_time_factor``);
 - the ratios end_to_end / compute and end_to_end / stepping (target of
   issue 23: end to end within 1.5 x the compute time);
-- the CPU time of the process (user + system, ``getrusage``), which does not
-  depend on the other jobs of a shared machine, and the load average;
+- the CPU time of the process (user + system, ``getrusage``) and of the
+  computation inside it (``compute_cpu_time_s``, vehicle runs), and their
+  ratio: figures that do not depend on the other jobs of a shared machine;
+  and the load average;
 - the bytes written, per file.
 
 Usage::
@@ -64,16 +66,24 @@ def main() -> int:
         compute = s.get("compute_wall_time_s", s.get("stepping_wall_time_s"))
         stepping = s["simulated_time_s"] / s["real_time_factor"]
         sizes = {f.name: f.stat().st_size for f in sorted(out.iterdir()) if f.is_file()}
+        cpu_compute = s.get("compute_cpu_time_s")
+        cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
         row = {"end_to_end_s": wall, "compute_s": compute, "stepping_s": stepping,
+               "cpu_compute_s": cpu_compute, "cpu_ratio": cpu / cpu_compute if cpu_compute else None,
                "ratio_to_compute": wall / compute, "ratio_to_stepping": wall / stepping,
-               "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime),
+               "cpu_s": cpu,
                "command_wall_time_s": s.get("command_wall_time_s"), "loadavg": (load0, os.getloadavg()[0]),
                "bytes": sum(sizes.values()), "files": sizes}
         rows.append(row)
         print(f"run {k}: end to end {wall:.2f} s, compute {compute:.2f} s, stepping {stepping:.2f} s, ratio "
-              f"{row['ratio_to_compute']:.2f} (to stepping {row['ratio_to_stepping']:.2f}), CPU {row['cpu_s']:.2f} s, "
+              f"{row['ratio_to_compute']:.2f} (to stepping {row['ratio_to_stepping']:.2f}), CPU {row['cpu_s']:.2f} s "
+              f"(compute {cpu_compute or float('nan'):.2f} s: ratio {row['cpu_ratio'] or float('nan'):.2f}), "
               f"{row['bytes'] / 1e6:.1f} MB, load {load0:.1f}->{os.getloadavg()[0]:.1f}")
     worst = max(rows, key=lambda r: r["ratio_to_compute"])
+    cpu_worst = max(rows, key=lambda r: r["cpu_ratio"] or 0.0)
+    print(f"worst CPU ratio of {len(rows)}: process CPU {cpu_worst['cpu_s']:.2f} s = "
+          f"{cpu_worst['cpu_ratio'] or 0:.2f} x the compute's CPU ({cpu_worst['cpu_compute_s'] or 0:.2f} s) "
+          "(load-independent)")
     print(f"worst of {len(rows)}: end to end {worst['end_to_end_s']:.2f} s = {worst['ratio_to_compute']:.2f} x compute "
           f"({worst['compute_s']:.2f} s), {worst['ratio_to_stepping']:.2f} x stepping; slowest end to end "
           f"{max(r['end_to_end_s'] for r in rows):.2f} s; files: "

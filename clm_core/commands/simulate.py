@@ -260,6 +260,7 @@ def _finish(d_out: Path, summary: dict[str, Any], t_start: float, t_write: float
     if t_write is not None:
         summary["writing_wall_time_s"] = now - t_write
     summary["command_wall_time_s"] = now - t_start
+    summary["command_cpu_time_s"] = time.process_time()  # of the process, Python start-up and imports included
     sim = summary.get("simulated_time_s")
     summary["real_time_factor_command"] = sim / (now - t_start) if sim and now > t_start else None
     summary["real_time_factor_note"] = ("real_time_factor: simulated time / wall time of the time stepping; "

@@ -326,9 +326,10 @@ def run_vehicle(
     from clm_core.io.plots import VEHICLE_FIGURES
     from clm_core.progress import Progress
 
-    tic = time.perf_counter()
+    tic, cpu = time.perf_counter(), time.process_time()
     run, res, summary = simulate_vehicle(spec, params, progress=progress)
     summary["compute_wall_time_s"] = time.perf_counter() - tic
+    summary["compute_cpu_time_s"] = time.process_time() - cpu
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     s = run.settings
