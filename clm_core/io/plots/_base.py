@@ -214,9 +214,13 @@ def _anchored_outside(leg: Legend, ax: Axes) -> bool:
 
 
 def save(fig: Figure, path: str | Path) -> Path:
-    """Lay out, place the legends, tell the observers, write the PNG."""
+    """Lay out, place the legends (a figure without axes legends is laid out once, by savefig, unless observers
+    look at it), tell the observers, write the PNG."""
     p = Path(path)
-    _place_legends(fig)
+    if any(ax.get_legend() is not None for ax in fig.axes):
+        _place_legends(fig)
+    elif figure_observers:  # they look at a laid-out figure; savefig lays it out itself
+        fig.draw_without_rendering()
     for observe in figure_observers:
         observe(fig, p)
     fig.savefig(p, dpi=_DPI)
@@ -224,7 +228,7 @@ def save(fig: Figure, path: str | Path) -> Path:
 
 
 #: Most points drawn per curve of a long record (:func:`decimate`): a figure is 1350 px wide.
-MAX_POINTS = 3000
+MAX_POINTS = 2400
 
 
 def decimate(x: Array, y: Array, most: int = MAX_POINTS, log: bool = False) -> tuple[Array, Array]:

@@ -153,9 +153,9 @@ def plot_vehicle_run(res: CoupledResult, out: str | Path, title: str = "", envel
     window = res.peak_window()
     admitted = window.sleepers(envelope.sleeper_index * spacing)
     g_peak = int(envelope.describe(admitted)["envelope_peak_sleeper_index"])
-    counts = np.isfinite(res.soil_force).sum(axis=0)
-    good = np.flatnonzero((counts >= 0.5 * max(1, counts.max())) & window.sleepers(res.sleeper_x))
-    good = good if good.size else np.flatnonzero(counts > 0)
+    held = np.isfinite(res.peak_soil_force)  # sleepers the window held (no pass over the (instants, sleepers) arrays)
+    good = np.flatnonzero(held & window.sleepers(res.sleeper_x))
+    good = good if good.size else np.flatnonzero(held)
     picks = [int(res.sleeper_index[j]) for j in good[np.linspace(0, good.size - 1, min(3, good.size)).round()
                                                        .astype(int)]] if good.size else []
     series = []
