@@ -388,3 +388,28 @@ def test_screenshot_of_the_report_in_headless_chromium(
     r = subprocess.run(["bash", str(REPO / "scripts" / "screenshot-report.sh"), str(tmp_path / "none")],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "no " in r.stderr and "index.html" in r.stderr
+
+
+def test_demo_report_marks_the_peak_over_the_admitted_sleepers(tmp_path: Path) -> None:
+    """plot_demo with the launcher's admitted sleepers marks the summary's peak sleeper, not a larger one outside."""
+    t = np.linspace(0.0, 1.0, 500)
+    x = 0.6 * np.arange(30.0)
+    force = 30e3 * np.exp(-(((np.arange(30)[None, :] - 30 * t[:, None]) / 2.0) ** 2))
+    force[:, 2] *= 2.0  # the largest force, at a sleeper outside the admitted ones
+    loads = np.full((500, 2), 80e3) + 5e3 * np.sin(2 * np.pi * 40 * t)[:, None]
+    admitted = np.zeros(30, bool)
+    admitted[5:25] = True
+    figs: dict[str, Figure] = {}
+    plots.figure_observers.append(lambda fig, path: figs.__setitem__(path.name, fig))
+    try:
+        plots.plot_demo(tmp_path, t, force, 100, t[200], x, force[200] / 30e6, force[200], t, loads,
+                        static_wheel_load=np.array([80e3, 80e3]), speed=30.0, admitted_sleepers=admitted)
+    finally:
+        plots.figure_observers.pop()
+    fig = figs["soil_forces.png"]
+    marker = next(ln for ln in fig.axes[1].get_lines() if str(ln.get_label()).startswith("peak: sleeper"))
+    g = int(str(marker.get_label()).split()[2].rstrip(","))
+    assert 105 <= g < 125 and np.asarray(marker.get_ydata(), float)[0] == pytest.approx(
+        np.nanmax(force[:, 5:25]) / 1e3)
+    assert _peak_lines(fig) and _peak_lines(fig)[0].startswith(f"sleeper {g} ")
+    assert all(not figure_problems(f) for f in figs.values())
