@@ -159,8 +159,9 @@ def masked_max(values: ArrayLike, mask: ArrayLike) -> tuple[float, int, bool]:
     Returns
     -------
     (value, index, fallback)
-        The maximum, its flat index in ``values`` and whether the fallback was
-        used (NaN, -1, True when there is no finite value at all).
+        The maximum, its flat index in ``values`` (of one occurrence when it
+        occurs more than once) and whether the fallback was used (NaN, -1,
+        True when there is no finite value at all).
 
     Raises
     ------
@@ -170,9 +171,14 @@ def masked_max(values: ArrayLike, mask: ArrayLike) -> tuple[float, int, bool]:
     v = np.asarray(values, dtype=float)
     mk = np.asarray(mask, dtype=bool)
     try:
-        m = np.broadcast_to(mk, v.shape).ravel()
+        np.broadcast_shapes(mk.shape, v.shape)
+        if np.broadcast_shapes(mk.shape, v.shape) != v.shape:
+            raise ValueError
     except ValueError:
         raise InputError(f"mask: shape {mk.shape}: does not broadcast to the values' shape {v.shape}") from None
+    if mk.ndim == v.ndim and v.ndim > 1 and mk.size < v.size:
+        return _masked_max_reduced(v, mk)
+    m = np.broadcast_to(mk, v.shape).ravel()
     v = v.ravel()
     ok = np.isfinite(v)
     sel = ok & m
@@ -183,6 +189,26 @@ def masked_max(values: ArrayLike, mask: ArrayLike) -> tuple[float, int, bool]:
         return float("nan"), -1, True
     i = int(np.argmax(np.where(sel, v, -np.inf)))
     return float(v[i]), i, fallback
+
+
+def _masked_max_reduced(v: NDArray[np.float64], mk: NDArray[np.bool_]) -> tuple[float, int, bool]:
+    """:func:`masked_max` for a mask constant along some axes (size 1 there): reduce those axes first.
+
+    One pass over ``v`` instead of a full-size mask and copies (a vehicle run's (instants, sleepers)
+    arrays). The value and fallback are those of the plain path; the index is that of the first
+    occurrence of the maximum within the first admitted mask cell holding it."""
+    axes = tuple(a for a in range(v.ndim) if mk.shape[a] == 1 and v.shape[a] > 1)
+    r = np.fmax.reduce(v, axis=axes, keepdims=True, initial=-np.inf, where=np.isfinite(v))
+    r = np.where(np.isneginf(r), np.nan, r)
+    value, i_r, fallback = masked_max(r, np.broadcast_to(mk, r.shape))  # r has the mask's shape
+    if i_r < 0:
+        return value, -1, True
+    pos = np.unravel_index(i_r, r.shape)
+    sl = tuple(slice(None) if a in axes else slice(int(pos[a]), int(pos[a]) + 1) for a in range(v.ndim))
+    sub = v[sl]
+    k = np.unravel_index(int(np.argmax(sub == value)), sub.shape)
+    full = tuple(int(k[a]) if a in axes else int(pos[a]) for a in range(v.ndim))
+    return value, int(np.ravel_multi_index(full, v.shape)), fallback
 
 
 def masked_min(values: ArrayLike, mask: ArrayLike) -> tuple[float, int, bool]:
@@ -277,3 +303,179 @@ class BlockPeaks:
         if self._best > -math.inf:
             return self._best, self.t_from, False
         return (self._best_all if self._best_all > -math.inf else math.nan), None, True
+
+
+# ----------------------------------------------------------------------------- report statistics
+
+
+def wheel_load_statistics(
+    wheel_load: ArrayLike, static: ArrayLike, admitted: ArrayLike | None = None
+) -> dict[str, Any]:
+    """Static load, dynamic part and dynamic factor of wheel loads, JSON-ready (``summary.json`` entries).
+
+    The dynamic part of a wheel load is P - P_static; its spread about the
+    static load (the root mean square of P - P_static, i.e. the standard
+    deviation about the static load, not about the mean) is what a track
+    engineer quotes, not the rms of P itself, which is essentially the
+    static load. The dynamic factor is the largest P / P_static.
+
+    Parameters
+    ----------
+    wheel_load : (k, W) array_like
+        Wheel loads [N] (NaN: wheel absent at that instant; ignored).
+    static : (W,) array_like
+        Static wheel loads [N] (> 0).
+    admitted : (k,) or (k, W) array_like of bool, optional
+        Instants (or entries) the statistics are over (e.g.
+        :meth:`PeakWindow.instants`); default every instant. If none is
+        admitted, every instant is used and ``wheel_load_statistics_fallback`` is true.
+
+    Returns
+    -------
+    dict
+        ``wheel_load_static_N`` (list, per wheel), ``wheel_load_dynamic_std_N``
+        (over every wheel), ``wheel_load_dynamic_std_per_wheel_N`` (list),
+        ``wheel_load_rms_including_static_N`` (rms of P, for comparison),
+        ``dynamic_factor`` (max P / P_static over the wheels),
+        ``dynamic_factor_wheel`` (its wheel), ``unloading_factor``
+        (min P / P_static), ``wheel_load_statistics_instants``,
+        ``wheel_load_statistics_fallback``.
+
+    Raises
+    ------
+    InputError
+        Shapes that do not match, or a static load that is not finite and > 0.
+    """
+    P = np.asarray(wheel_load, dtype=float)
+    if P.ndim == 1:
+        P = P[:, None]
+    s = np.asarray(static, dtype=float).reshape(-1)
+    if P.ndim != 2 or s.size != P.shape[1]:
+        raise InputError(f"wheel_load_statistics: wheel loads of shape {np.shape(wheel_load)} and {s.size} static "
+                         "load(s): need (k, W) loads and W static loads")
+    if not np.all(np.isfinite(s) & (s > 0)):
+        raise InputError(f"wheel_load_statistics: static loads {s.tolist()}: must be finite and > 0 N")
+    if admitted is None:
+        m = np.ones(P.shape, dtype=bool)
+    else:
+        try:
+            m = np.broadcast_to(np.asarray(admitted, dtype=bool).reshape(
+                (-1, 1) if np.ndim(admitted) == 1 else np.shape(admitted)), P.shape)
+        except ValueError:
+            raise InputError(f"wheel_load_statistics: admitted of shape {np.shape(admitted)} for loads of shape "
+                             f"{P.shape}") from None
+    ok = np.isfinite(P)
+    fallback = not (m & ok).any()
+    sel = ok if fallback else (m & ok)
+    dP = np.where(sel, P - s[None, :], np.nan)
+    ratio = np.where(sel, P / s[None, :], np.nan)
+    with np.errstate(invalid="ignore"):
+        per_wheel = np.sqrt(np.nanmean(dP**2, axis=0)) if sel.any() else np.full(s.size, np.nan)
+    any_sel = bool(sel.any())
+    df_wheel = int(np.nanargmax(np.nanmax(np.where(sel, ratio, -np.inf), axis=0))) if any_sel else -1
+    return {
+        "wheel_load_static_N": [float(v) for v in s],
+        "wheel_load_dynamic_std_N": float(np.sqrt(np.nanmean(dP[sel] ** 2))) if any_sel else math.nan,
+        "wheel_load_dynamic_std_per_wheel_N": [float(v) for v in per_wheel],
+        "wheel_load_rms_including_static_N": float(np.sqrt(np.mean(P[sel] ** 2))) if any_sel else math.nan,
+        "dynamic_factor": float(np.max(ratio[sel])) if any_sel else math.nan,
+        "dynamic_factor_wheel": df_wheel,
+        "unloading_factor": float(np.min(ratio[sel])) if any_sel else math.nan,
+        "wheel_load_statistics_instants": int(np.count_nonzero(np.any(sel, axis=1))),
+        "wheel_load_statistics_fallback": fallback,
+    }
+
+
+@dataclass(frozen=True)
+class SleeperEnvelope:
+    """Largest and smallest soil force of each sleeper over a run (the envelope along the track).
+
+    Attributes
+    ----------
+    sleeper_index : (m,) int array
+        Global sleeper indices, ascending (every sleeper with a value).
+    maximum, minimum : (m,) arrays
+        Largest and smallest soil force of each [N] (compression positive;
+        a negative minimum is a tensile ballast force).
+    """
+
+    sleeper_index: NDArray[np.int64]
+    maximum: NDArray[np.float64]
+    minimum: NDArray[np.float64]
+
+    @property
+    def tensile(self) -> NDArray[np.bool_]:
+        """Sleepers whose soil force went negative (the ballast pulled on the soil)."""
+        return np.asarray(self.minimum < 0.0)
+
+    def describe(self, mask: ArrayLike | None = None) -> dict[str, Any]:
+        """JSON-ready: the peak sleeper and the tensile sleepers (over ``mask`` of the sleepers, default all)."""
+        m = np.ones(self.sleeper_index.size, bool) if mask is None else np.asarray(mask, dtype=bool)
+        if not m.any():
+            m = np.ones(self.sleeper_index.size, bool)
+        i = int(np.flatnonzero(m)[np.argmax(self.maximum[m])])
+        j = int(np.flatnonzero(m)[np.argmin(self.minimum[m])])
+        ten = self.tensile & m
+        return {
+            "envelope_peak_sleeper_index": int(self.sleeper_index[i]),
+            "envelope_peak_soil_force_N": float(self.maximum[i]),
+            "envelope_min_soil_force_N": float(self.minimum[j]),
+            "envelope_min_sleeper_index": int(self.sleeper_index[j]),
+            "tensile_sleepers": int(np.count_nonzero(ten)),
+            "tensile_note": ("negative soil force: the ballast spring of the model pulls on the soil (it carries "
+                             "tension; a real ballast bed may lift off instead) at "
+                             f"{int(np.count_nonzero(ten))} sleeper(s), down to {float(self.minimum[j]) / 1e3:.2f} kN"
+                             if ten.any() else "no tensile (negative) soil force"),
+        }
+
+
+def sleeper_envelope(first_sleeper: ArrayLike, soil_force: ArrayLike,
+                     peak_index: ArrayLike | None = None, peak_force: ArrayLike | None = None) -> SleeperEnvelope:
+    """The envelope of window-relative sleeper forces (the ``history.npz`` layout).
+
+    Parameters
+    ----------
+    first_sleeper : (k,) int array_like
+        Global index of column 0 at each instant.
+    soil_force : (k, N) array_like
+        Soil force of the window's sleepers [N] (NaN: not held).
+    peak_index, peak_force : (m,) array_like, optional
+        Running maxima over every step (``peak_sleeper_index``,
+        ``peak_soil_force``): they raise the maxima (the recorded instants
+        may miss the step of a peak).
+
+    Returns
+    -------
+    SleeperEnvelope
+
+    Raises
+    ------
+    InputError
+        Shapes that do not match, or no finite force.
+    """
+    F = np.asarray(soil_force, dtype=float)
+    g0 = np.asarray(first_sleeper).astype(np.int64).reshape(-1)
+    if F.ndim != 2 or g0.size != F.shape[0]:
+        raise InputError(f"sleeper_envelope: {g0.size} first-sleeper values for forces of shape {F.shape}")
+    g = (g0[:, None] + np.arange(F.shape[1])[None, :]).ravel()
+    v = F.ravel()
+    ok = np.isfinite(v)
+    extra_i = np.zeros(0, np.int64) if peak_index is None else np.asarray(peak_index).astype(np.int64).reshape(-1)
+    extra_f = np.zeros(0) if peak_force is None else np.asarray(peak_force, dtype=float).reshape(-1)
+    if extra_i.size != extra_f.size:
+        raise InputError(f"sleeper_envelope: {extra_i.size} peak indices for {extra_f.size} peak forces")
+    if not ok.any() and not np.isfinite(extra_f).any():
+        raise InputError("sleeper_envelope: no finite soil force")
+    g, v = g[ok], v[ok]
+    lo = int(min(g.min() if g.size else extra_i.min(), extra_i.min() if extra_i.size else g.min()))
+    hi = int(max(g.max() if g.size else extra_i.max(), extra_i.max() if extra_i.size else g.max()))
+    mx = np.full(hi - lo + 1, -np.inf)
+    mn = np.full(hi - lo + 1, np.inf)
+    np.maximum.at(mx, g - lo, v)
+    np.minimum.at(mn, g - lo, v)
+    fe = np.isfinite(extra_f)
+    np.maximum.at(mx, extra_i[fe] - lo, extra_f[fe])
+    np.minimum.at(mn, extra_i[fe] - lo, extra_f[fe])
+    have = np.isfinite(mx)
+    idx = np.arange(lo, hi + 1, dtype=np.int64)[have]
+    return SleeperEnvelope(sleeper_index=idx, maximum=mx[have], minimum=mn[have])

@@ -161,3 +161,76 @@ def test_block_peaks_refuses_nonfinite_start(front_start: float, t_start: float,
 def test_block_peaks_refuses_blocks_of_mismatched_sizes(front: list[float], times: list[float], values: object) -> None:
     with pytest.raises(InputError, match=re.escape("need k positions, k times and k x W values")):
         BlockPeaks(0.0, 0.6).add([1.0, 2.0], front, times, values)  # type: ignore[arg-type]
+
+
+# ----------------------------------------------------------------------------- report statistics (issue 23)
+
+
+def test_dynamic_factor_of_a_constant_load_is_one() -> None:
+    from clm_core.peaks import wheel_load_statistics
+
+    P = np.full((500, 2), 83385.0)
+    s = wheel_load_statistics(P, [83385.0, 83385.0])
+    assert s["dynamic_factor"] == pytest.approx(1.0, abs=1e-12) and s["unloading_factor"] == pytest.approx(1.0)
+    assert s["wheel_load_dynamic_std_N"] == pytest.approx(0.0, abs=1e-9)
+    assert s["wheel_load_rms_including_static_N"] == pytest.approx(83385.0)
+
+
+def test_dynamic_part_is_the_spread_about_the_static_load() -> None:
+    from clm_core.peaks import wheel_load_statistics
+
+    t = np.linspace(0.0, 1.0, 4001)[:-1]
+    static = np.array([80e3, 60e3])
+    P = static[None, :] + np.column_stack([9e3 * np.sin(2 * np.pi * 20 * t), 3e3 * np.sin(2 * np.pi * 7 * t)])
+    P[:100, 0] = 200e3  # start-up transient, excluded below
+    admitted = t >= 0.5  # whole half-periods of both sines
+    s = wheel_load_statistics(P, static, admitted)
+    assert s["wheel_load_dynamic_std_per_wheel_N"][1] == pytest.approx(3e3 / np.sqrt(2), rel=1e-3)
+    ok = P[admitted]
+    assert s["wheel_load_dynamic_std_N"] == pytest.approx(np.sqrt(np.mean((ok - static) ** 2)), rel=1e-12)
+    assert s["dynamic_factor"] == pytest.approx((80e3 + 9e3) / 80e3, rel=1e-4) and s["dynamic_factor_wheel"] == 0
+    # the rms of the load itself is essentially the static load: not the dynamic part
+    assert s["wheel_load_rms_including_static_N"] > 10 * s["wheel_load_dynamic_std_N"]
+    with pytest.raises(InputError, match="static loads"):
+        wheel_load_statistics(P, [80e3, 0.0])
+    with pytest.raises(InputError, match=re.escape("(4000, 2) and 3 static load(s)")):
+        wheel_load_statistics(P, [80e3, 60e3, 50e3])
+
+
+def test_envelope_peak_is_the_max_of_the_history(tmp_path: Path) -> None:
+    from clm_core.peaks import sleeper_envelope
+
+    out = tmp_path / "run"
+    assert main(["simulate", "--load", "100e3", "--axles", "0,2.5", "--speed", "30", "--duration", "0.3",
+                 "--dt", "2e-4", "--out", str(out)]) == 0
+    h = load_history(out / "history.npz")
+    env = sleeper_envelope(h.first_sleeper, h.soil_force)
+    for g in env.sleeper_index[:: max(1, env.sleeper_index.size // 7)]:
+        series = h.sleeper_series(int(g))
+        assert env.maximum[env.sleeper_index == g][0] == np.nanmax(series)
+        assert env.minimum[env.sleeper_index == g][0] == np.nanmin(series)
+    assert env.maximum.max() == np.nanmax(h.soil_force)
+    # with the every-step running maxima: never below the recorded instants, equal to the file's peaks
+    full = sleeper_envelope(h.first_sleeper, h.soil_force, h.peak_sleeper_index, h.peak_soil_force)
+    np.testing.assert_array_equal(full.sleeper_index, h.peak_sleeper_index)
+    np.testing.assert_array_equal(full.maximum, np.maximum(h.peak_soil_force, full.maximum))
+    assert np.all(full.maximum >= env.maximum) and full.maximum.max() == h.peak_soil_force.max()
+    d = full.describe()
+    assert d["envelope_peak_soil_force_N"] == h.peak_soil_force.max()
+    assert (d["tensile_sleepers"] > 0) == (np.nanmin(h.soil_force) < 0)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["envelope_peak_sleeper_index"] == summary["peak_sleeper_index"]
+
+
+def test_masked_max_reduced_path_agrees_with_the_plain_path() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        k, n = rng.integers(1, 20, 2)
+        v = rng.normal(size=(k, n))
+        v[rng.random((k, n)) < 0.6] = np.nan
+        m = rng.random((1, n)) < 0.5
+        got = masked_max(v, m)
+        plain = masked_max(v, np.broadcast_to(m, v.shape).copy())
+        assert got[2] == plain[2] and (got[0] == plain[0] or (np.isnan(got[0]) and np.isnan(plain[0])))
+        if got[1] >= 0:
+            assert v.ravel()[got[1]] == got[0] and np.broadcast_to(m, v.shape).ravel()[got[1]] != got[2]

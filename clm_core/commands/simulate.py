@@ -5,9 +5,14 @@ time history (``--loads-file``, CSV, format in
 :meth:`clm_core.solver.LoadTable.read_csv`) or a multibody vehicle
 (``--vehicle``, :mod:`clm_core.vehicle.run`) drive the streaming simulator
 (:class:`clm_core.solver.TrackSimulator`, a window of sleepers that follows
-the wheels). Writes to ``--out``: ``history.npz``, ``sleepers.csv``,
-``wheels.csv``, ``peaks.csv`` (layouts in :mod:`clm_core.io.history`),
-``simulate.png`` and ``summary.json``. Every option and its default comes from
+the wheels). Writes to ``--out``: ``history.npz``, ``peaks.csv``, with
+``--csv`` also ``sleepers.csv`` and ``wheels.csv`` (layouts in
+:mod:`clm_core.io.history`), ``simulate.png``, the report figures
+(:data:`clm_core.io.plots.RUN_FIGURES`), ``summary.json`` and
+``index.html`` (:mod:`clm_core.io.report_index`). The writing phase shows
+a progress bar on a terminal; the printed real-time factors are named: the
+computation's (simulated time / stepping wall time) and the command's
+(simulated time / wall time of the whole command, writing included). Every option and its default comes from
 the run-settings schema (:mod:`clm_core.settings`); the reported peaks exclude
 the start-up transient and the sleepers not fully passed
 (:mod:`clm_core.peaks`, stated in ``summary.json`` under ``peak_exclusion``).
@@ -54,7 +59,10 @@ def register(sub: Any) -> None:
     add_setting(p, "dt")
     add_setting(p, "initial_state", note="(moving loads; a vehicle run starts from static equilibrium)")
     add_setting(p, "output_dt")
-    p.add_argument("--no-csv", action="store_true", help="write the NPZ only (no sleepers.csv / wheels.csv)")
+    p.add_argument("--csv", action="store_true",
+                   help="also write the time histories as CSV (sleepers.csv, wheels.csv; about 10x the size and "
+                   "writing time of the NPZ, which holds the same numbers)")
+    p.add_argument("--no-csv", action="store_true", help="no CSV files (the default; kept for scripts)")
     p.add_argument("--bag", action="store_true",
                    help="also write the time histories as a rosbag2 bag DIR/bag in --storage (clm_msgs; needs "
                    "the ROS layer)")
@@ -117,17 +125,16 @@ def run(args: argparse.Namespace) -> int:
     with output_dir(args.out, args.overwrite) as d_out:
         params = model_from_args(args)
         if args.vehicle:
-            return _run_vehicle(args, params, d_out)
+            return _run_vehicle(args, params, d_out, t_setup)
         return _run_loads(args, params, d_out, t_setup)
 
 
 def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: float) -> int:
     import numpy as np
 
-    from clm_core.io.files import write_json
     from clm_core.io.history import HistoryWriter
-    from clm_core.io.plots import plot_run
-    from clm_core.peaks import BlockPeaks, masked_max, peak_window
+    from clm_core.io.plots import RUN_FIGURES
+    from clm_core.peaks import BlockPeaks
     from clm_core.progress import Progress
     from clm_core.solver import LoadTable, TrackSimulator
 
@@ -172,7 +179,7 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
     n_steps = int(math.floor(duration / dt + 1e-6))
     every = max(1, int(round(args.output_dt / dt)))
     W = int(np.size(P0))
-    writer = HistoryWriter(d_out, n_steps // every + 2, n_sleepers, W, d, dt, csv=not args.no_csv)
+    writer = HistoryWriter(d_out, n_steps // every + 2, n_sleepers, W, d, dt, csv=bool(args.csv))
     wheel_peaks = BlockPeaks(front0, d, PASSED_MARGIN_BAYS, t0)
     first = sim.block()
     writer(first)
@@ -204,9 +211,77 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
             done += k
             bar.update(k)
     sim_time = n_steps * dt
-    digest = writer.close({"t0": t0})
-    if args.bag:
-        _write_bag(d_out, args.storage)
+    t_write = time.perf_counter()
+    n_files = 2 + bool(args.csv) + bool(args.bag) + 1 + len(RUN_FIGURES) + 2  # history, peaks; summary, index
+    with Progress(n_files, "clm simulate: writing", unit="file") as wbar:
+        def wrote(p: Path) -> None:
+            wbar.stage(p.name)
+            wbar.update(1)
+
+        digest = writer.close({"t0": t0}, on_file=wrote)
+        if args.bag:
+            _write_bag(d_out, args.storage)
+            wrote(d_out / "bag")
+        summary = _loads_summary(args, params, d_out, sim, digest, wheel_peaks, table, (P0, F0, front0), speed,
+                                 wrote)
+        summary.update({
+            "initial_max_sleeper_soil_force_N": initial_max_force,
+            "real_time_factor": sim_time / (wall - out_wall[0]) if wall > out_wall[0] else None,
+            "real_time_factor_with_recording": sim_time / wall if wall > 0 else None,
+            "stepping_wall_time_s": wall - out_wall[0],
+            "recording_wall_time_s": out_wall[0],
+            "setup_time_s": setup_time,
+            "simulated_time_s": sim_time,
+            "steps": n_steps,
+            "dt_s": dt,
+            "output_interval_s": every * dt,
+        })
+        _finish(d_out, summary, t_setup, t_write, wrote)
+    rtf = summary["real_time_factor"]
+    print(f"simulate: peak sleeper soil force {quantity(summary['peak_sleeper_soil_force_N'], 'N')} (sleeper "
+          f"{summary['peak_sleeper_index']}), max rail deflection {quantity(summary['max_rail_deflection_m'], 'm')}; "
+          f"{_rtf_text(rtf, summary)} -> {d_out}")
+    return 0
+
+
+def _rtf_text(compute: float | None, summary: dict[str, Any]) -> str:
+    """The two real-time factors, named."""
+    return (f"compute real-time factor {quantity(compute, '', 3)} (simulated / stepping wall time), command "
+            f"real-time factor {quantity(summary['real_time_factor_command'], '', 3)} (simulated / wall time of "
+            f"clm simulate, writing included)")
+
+
+def _finish(d_out: Path, summary: dict[str, Any], t_start: float, t_write: float | None, wrote: Any) -> None:
+    """Command timing into the summary; ``summary.json`` and ``index.html`` (the report of the folder)."""
+    from clm_core.io.files import write_json
+    from clm_core.io.report_index import write_index
+
+    now = time.perf_counter()
+    if t_write is not None:
+        summary["writing_wall_time_s"] = now - t_write
+    summary["command_wall_time_s"] = now - t_start
+    summary["command_cpu_time_s"] = time.process_time()  # of the process, Python start-up and imports included
+    sim = summary.get("simulated_time_s")
+    summary["real_time_factor_command"] = sim / (now - t_start) if sim and now > t_start else None
+    summary["real_time_factor_note"] = ("real_time_factor: simulated time / wall time of the time stepping; "
+                                        "real_time_factor_command: simulated time / wall time of the command from "
+                                        "its start (after the Python start-up) to summary.json, writing included")
+    write_json(d_out / "summary.json", summary)
+    wrote(d_out / "summary.json")
+    wrote(write_index(d_out, title=f"clm simulate: {d_out.name}"))
+
+
+def _loads_summary(args: argparse.Namespace, params: Any, d_out: Path, sim: Any, digest: Any, wheel_peaks: Any,
+                   table: Any, start: tuple[Any, Any, float], speed: float, wrote: Any) -> dict[str, Any]:
+    """Peaks (clm_core.peaks), figures and the summary of a moving-load run."""
+    import numpy as np
+
+    from clm_core.io.plots import plot_run, plot_run_report
+    from clm_core.peaks import masked_max, peak_window
+
+    d = params.track.spacing
+    P0, F0, front0 = start
+    W = int(np.size(P0))
 
     # peaks over the sleepers the loads have fully passed and the instants after the start-up (clm_core.peaks)
     idx = digest.peak_sleeper_index
@@ -226,9 +301,11 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
                  f"at least {PASSED_MARGIN_BAYS} bays from the loads' start and end positions")
     plot_idx = idx[passed] if passed.any() else idx
     picks = sorted({int(plot_idx[int(round(q * (plot_idx.size - 1)))]) for q in (0.0, 0.33, 0.67, 1.0)})
-    plot_run(d_out / "history.npz", digest, picks, d_out / "simulate.png",
-             title=f"{params.name or 'parameter file'}: "
-             + (f"{W} load(s), {speed:g} m/s" if table is None else f"loads from {args.loads_file}"))
+    title = f"{params.name or 'parameter file'}: " + (f"{W} load(s), {speed:g} m/s" if table is None
+                                                       else f"loads from {args.loads_file}")
+    plot_run(d_out / "history.npz", digest, picks, d_out / "simulate.png", title=title)
+    wrote(d_out / "simulate.png")
+    _, env = plot_run_report(d_out / "history.npz", d_out, title, (window.x_from, window.x_to), on_file=wrote)
     exclusion = window.describe(idx, passed, instants_from_s=t_from, sleepers_fallback=fb_force or fb_rail,
                                 instants_fallback=fb_wheel)
     exclusion["applies_to"] = ["peak_sleeper_soil_force_N", "peak_sleeper_index", "max_rail_deflection_m",
@@ -246,40 +323,27 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
         "max_rail_deflection_under_wheel_m": wheel_max,
         "max_rail_deflection_above_sleeper_m": peak_rail,
         "peak_exclusion": exclusion,
-        "initial_max_sleeper_soil_force_N": initial_max_force,
+        **env.describe(window.sleepers(env.sleeper_index * d)),
         "initial_state": args.initial_state,
-        "real_time_factor": sim_time / (wall - out_wall[0]) if wall > out_wall[0] else None,
-        "real_time_factor_with_recording": sim_time / wall if wall > 0 else None,
-        "stepping_wall_time_s": wall - out_wall[0],
-        "recording_wall_time_s": out_wall[0],
-        "setup_time_s": setup_time,
-        "simulated_time_s": sim_time,
-        "steps": n_steps,
-        "dt_s": dt,
         "speed_m_per_s": speed if table is None else None,
         "wheel_loads_N": [float(f) for f in np.atleast_1d(F0)],
         "wheel_start_positions_m": [float(p) for p in np.atleast_1d(P0)],
-        "window_sleepers": n_sleepers,
+        "window_sleepers": sim.n_sleepers,
         "lead_sleepers": sim.lead_sleepers,
         "margin_sleepers": sim.margin_sleepers,
         "elements_per_bay": args.elements_per_bay,
         "n_dof_window": sim.n_dof,
         "factorisations": sim.n_factorisations,
         "final_window_first_sleeper": sim.window[0],
-        "output_interval_s": every * dt,
         "output_rows": digest.n_rows,
         "model": params.name or "parameter file",
         "soil_model": params.soil.model,
         "n_overrides": len(params.overrides),
     }
-    write_json(d_out / "summary.json", summary)
-    rtf = summary["real_time_factor"]
-    print(f"simulate: peak sleeper soil force {quantity(peak_force, 'N')} (sleeper {g_peak}), max rail deflection "
-          f"{quantity(max_defl, 'm')}, real-time factor {quantity(rtf, '', 3)} -> {d_out}")
-    return 0
+    return summary
 
 
-def _run_vehicle(args: argparse.Namespace, params: Any, d_out: Path) -> int:
+def _run_vehicle(args: argparse.Namespace, params: Any, d_out: Path, t_start: float) -> int:
     """``--vehicle``: the coupled vehicle-track simulation (clm_core.vehicle.run)."""
     from clm_core.progress import terminal
     from clm_core.vehicle.run import VehicleRunSpec, run_vehicle
@@ -292,11 +356,13 @@ def _run_vehicle(args: argparse.Namespace, params: Any, d_out: Path) -> int:
         "track_engine": args.track_engine, "n_sleepers": args.n_sleepers,
         "elements_per_bay": args.elements_per_bay, "lead_sleepers": args.lead_sleepers, "output_dt": args.output_dt,
     })
-    s = run_vehicle(spec, params, d_out, csv_files=not args.no_csv, progress=terminal())
-    print(f"simulate --vehicle: peak wheel load {quantity(s['peak_wheel_load_N'], 'N')}, rms wheel load "
-          f"{quantity(s['rms_wheel_load_N'], 'N')}, peak sleeper soil force "
-          f"{quantity(s['peak_sleeper_soil_force_N'], 'N')}, contact losses {s['contact_loss_events']}, "
-          f"real-time factor {quantity(s['real_time_factor'], '', 3)} -> {d_out}")
+    s = run_vehicle(spec, params, d_out, csv_files=bool(args.csv), progress=terminal())
+    _finish(d_out, s, t_start, None, lambda _p: None)
+    print(f"simulate --vehicle: peak wheel load {quantity(s['peak_wheel_load_N'], 'N')} (dynamic factor "
+          f"{s['dynamic_factor']:.3f} of the static {quantity(max(s['wheel_load_static_N']), 'N')}), dynamic part "
+          f"of the wheel load {quantity(s['wheel_load_dynamic_std_N'], 'N')} (std about the static load), peak "
+          f"sleeper soil force {quantity(s['peak_sleeper_soil_force_N'], 'N')} (sleeper {s['peak_sleeper_index']}), "
+          f"contact losses {s['contact_loss_events']}; {_rtf_text(s['real_time_factor'], s)} -> {d_out}")
     return 0
 
 

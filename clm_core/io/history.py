@@ -36,13 +36,17 @@ forces and displacements positive downwards):
     ``wheel_deflection`` (k, W) [m]; ``wheel_velocity`` (k, W) [m/s];
     ``peak_sleeper_index`` (m,) int; ``peak_soil_force`` (m,) [N];
     ``peak_rail_deflection`` (m,) [m]; ``spacing`` [m]; ``dt`` [s].
-``vehicle_history.npz`` (vehicle run, :func:`write_coupled_history`)
+``vehicle_history.npz`` (vehicle run, :func:`write_coupled_history`; uncompressed)
     every array of :class:`~clm_core.vehicle.coupled.CoupledResult` (``t``,
     ``wheel_position``, ``wheel_load``, ``static_wheel_load``,
     ``compression``, ``wheel_displacement``, ``rail_deflection``,
     ``irregularity``, ``vehicle_energy``, ``newton_iterations``, ``t_out``,
-    ``sleeper_index``, ``sleeper_x``, ``soil_force``,
-    ``sleeper_rail_deflection``, ``peak_soil_force``) plus ``meta_json``.
+    ``sleeper_index``, ``sleeper_x``, ``peak_soil_force``) plus ``meta_json``;
+    the sleeper fields ``soil_force`` and ``sleeper_rail_deflection`` are
+    stored window-relative as in ``history.npz``: (n_o, N) with
+    ``first_sleeper`` (n_o,), the global index of column 0 at each snapshot
+    (the run's dense (n_o, n_s) arrays are NaN outside the engine's window:
+    98 % NaN for a 20 s run; :func:`read_vehicle_history` expands them back).
 ``wheels.csv`` (both runs: ONE layout)
     ``t_s``, then for each wheel ``i = 0 .. W-1`` (front first) seven columns
     (:data:`WHEEL_CSV_COLUMNS`):
@@ -63,6 +67,9 @@ forces and displacements positive downwards):
     :func:`read_wheels_csv` reads this layout and the two earlier ones
     (moving-load ``x{i}_m, F{i}_N, w{i}_m, v{i}_m_per_s`` with ``i`` from 1;
     vehicle ``x{i}_m, P{i}_N, delta{i}_m, z{i}_m, w{i}_m, r{i}_m``).
+The CSV files are written on request (``clm simulate --csv``): the NPZ files
+hold the same numbers in a tenth of the space and time.
+
 ``sleepers.csv`` (both runs)
     long format, one row per output instant and sleeper in the window:
     ``t_s, sleeper_index, x_m, soil_force_N, rail_deflection_m,
@@ -81,7 +88,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -516,24 +523,30 @@ class HistoryWriter:
                 append_wheel_rows(fw, t, W, {"x": m["wheel_position"][r0:r1], "P": m["wheel_force"][r0:r1],
                                              "w": m["wheel_deflection"][r0:r1], "v": m["wheel_velocity"][r0:r1]})
 
-    def close(self, extra: dict[str, Any] | None = None) -> RunDigest:
-        """Flush: pack ``history.npz`` (streamed from the memory maps), ``peaks.csv``; return the digest."""
+    def close(self, extra: dict[str, Any] | None = None, on_file: Callable[[Path], None] | None = None) -> RunDigest:
+        """Flush: pack ``history.npz`` (streamed from the memory maps), ``peaks.csv``; return the digest.
+
+        ``on_file`` is called with each file once written (progress of the writing phase).
+        """
         idx, pf, pr = self._peaks.arrays()
         r = self.rows
+        tell = on_file or (lambda _p: None)
         if self.csv:
             self._write_csv(r)
+            tell(self.dir / "sleepers.csv")
         items: list[tuple[str, Any]] = [(name, mm[:r]) for name, mm in self._maps.items()]
         items += [("peak_sleeper_index", idx), ("peak_soil_force", pf), ("peak_rail_deflection", pr),
                   ("spacing", np.array(self.spacing)), ("dt", np.array(self.dt))]
         items += [(k, np.asarray(v)) for k, v in (extra or {}).items()]
         write_npz(self.dir / "history.npz", items)
+        tell(self.dir / "history.npz")
         del items
         for name in list(self._maps):
             mm = self._maps.pop(name)
             del mm
             os.remove(self._tmp / f"{name}.npy")
         os.rmdir(self._tmp)
-        write_peaks_csv(self.dir / "peaks.csv", idx, idx * self.spacing, pf, pr)
+        tell(write_peaks_csv(self.dir / "peaks.csv", idx, idx * self.spacing, pf, pr))
         t_max, px, prl, pw = self._profile
         return RunDigest(n_rows=r, peak_sleeper_index=idx, peak_soil_force=pf, peak_rail_deflection=pr,
                          max_wheel_deflection=self._max_wheel, t_max=t_max, profile_x=px, profile_rail=prl,
@@ -568,8 +581,66 @@ def load_history(path: str | Path) -> TimeHistory:
 # ----------------------------------------------------------------------------- vehicle runs
 
 
-def write_coupled_history(res: CoupledResult, out: str | Path, csv_files: bool = True) -> list[Path]:
-    """Write a coupled vehicle run: ``vehicle_history.npz`` and, with ``csv_files``, the three CSV files.
+def window_columns(dense: ArrayLike) -> tuple[IntArray, Array]:
+    """Window-relative form of a dense (n_o, n_s) sleeper field that is NaN outside a window.
+
+    Returns ``(first, compact)``: ``first[k]`` the column of the first finite value of row k (0 if none),
+    ``compact[k, j] == dense[k, first[k] + j]`` (NaN beyond n_s), N the widest span of finite values.
+    """
+    a = np.asarray(dense, dtype=np.float64)
+    if a.ndim != 2:
+        raise InputError(f"window_columns: a (n_o, n_s) array expected, got shape {a.shape}")
+    fin = np.isfinite(a)
+    have = fin.any(axis=1)
+    first = np.where(have, np.argmax(fin, axis=1), 0).astype(np.int64)
+    last = np.where(have, a.shape[1] - 1 - np.argmax(fin[:, ::-1], axis=1), -1)
+    width = int(max(1, int(np.max(last - first + 1, initial=1))))
+    cols = first[:, None] + np.arange(width)[None, :]
+    out = np.take_along_axis(a, np.minimum(cols, a.shape[1] - 1), axis=1)
+    out[cols >= a.shape[1]] = np.nan
+    return first, out
+
+
+def read_vehicle_history(path: str | Path, dense: bool = True) -> dict[str, Any]:
+    """Read a ``vehicle_history.npz``: every array by name, ``meta`` (dict) from ``meta_json``.
+
+    ``dense``: the sleeper fields expanded to (n_o, n_s) over ``sleeper_index`` (NaN outside the window,
+    as in :class:`~clm_core.vehicle.coupled.CoupledResult`); otherwise window-relative with ``first_sleeper``.
+
+    Raises :class:`InputError` for a file that is not readable or not of this layout.
+    """
+    import json
+
+    try:
+        z = np.load(path)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read a vehicle_history.npz ({exc})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise InputError(f"{path}: not a vehicle_history.npz (a single .npy array)")
+    with z:
+        missing = [k for k in ("wheel_load", "first_sleeper", "soil_force", "sleeper_index") if k not in z.files]
+        if missing:
+            raise InputError(f"{path}: not a vehicle_history.npz of this layout: no array {', '.join(missing)}")
+        h: dict[str, Any] = {k: z[k] for k in z.files}
+    h["meta"] = json.loads(str(h.pop("meta_json"))) if "meta_json" in h else {}
+    if dense:
+        n_s, k = h["sleeper_index"].size, h["t_out"].size
+        lo = int(h["sleeper_index"][0]) if n_s else 0
+        for name in ("soil_force", "sleeper_rail_deflection"):
+            c = h[name]
+            full = np.full((k, n_s), np.nan)
+            cols = h["first_sleeper"][:, None] - lo + np.arange(c.shape[1])[None, :]
+            ok = (cols >= 0) & (cols < n_s)
+            rows = np.broadcast_to(np.arange(k)[:, None], cols.shape)
+            full[rows[ok], cols[ok]] = c[ok]
+            h[name] = full
+    return h
+
+
+def write_coupled_history(res: CoupledResult, out: str | Path, csv_files: bool = True,
+                          on_file: Callable[[Path], None] | None = None,
+                          window: tuple[IntArray, Array] | None = None) -> list[Path]:
+    """Write a coupled vehicle run: ``vehicle_history.npz``, ``peaks.csv`` and, with ``csv_files``, the other CSVs.
 
     Parameters
     ----------
@@ -578,16 +649,21 @@ def write_coupled_history(res: CoupledResult, out: str | Path, csv_files: bool =
     out : path
         Output directory (must exist).
     csv_files : bool
-        Also write ``wheels.csv`` (every ``meta['snapshot_every']``-th step),
-        ``sleepers.csv`` (the sleepers in the engine's window at each
-        snapshot) and ``peaks.csv`` (module docstring).
+        Also write ``wheels.csv`` (every ``meta['snapshot_every']``-th step) and
+        ``sleepers.csv`` (the window's sleepers at each snapshot) (module docstring).
+    on_file : callable, optional
+        Called with each file once written (progress of the writing phase).
+    window : (first, compact), optional - :func:`window_columns` of ``res.soil_force`` if the caller has it.
 
-    Returns
-    -------
-    list of Path
-        The files written.
+    Returns the files written (list of Path).
     """
     d = Path(out)
+    tell = on_file or (lambda _p: None)
+    first_col, sf = window if window is not None else window_columns(res.soil_force)
+    lo = int(res.sleeper_index[0]) if res.sleeper_index.size else 0
+    cols = np.minimum(first_col[:, None] + np.arange(sf.shape[1])[None, :], max(res.sleeper_index.size - 1, 0))
+    rd = np.take_along_axis(np.asarray(res.sleeper_rail_deflection, dtype=np.float64), cols, axis=1)
+    rd[np.isnan(sf)] = np.nan
     written = [write_npz(
         d / "vehicle_history.npz",
         {"t": res.t, "wheel_position": res.wheel_position, "wheel_load": res.wheel_load,
@@ -595,11 +671,14 @@ def write_coupled_history(res: CoupledResult, out: str | Path, csv_files: bool =
          "wheel_displacement": res.wheel_displacement, "rail_deflection": res.rail_deflection,
          "irregularity": res.irregularity, "vehicle_energy": res.vehicle_energy,
          "newton_iterations": res.newton_iterations, "t_out": res.t_out, "sleeper_index": res.sleeper_index,
-         "sleeper_x": res.sleeper_x, "soil_force": res.soil_force,
-         "sleeper_rail_deflection": res.sleeper_rail_deflection, "peak_soil_force": res.peak_soil_force,
+         "sleeper_x": res.sleeper_x, "first_sleeper": first_col + lo, "soil_force": sf,
+         "sleeper_rail_deflection": rd, "peak_soil_force": res.peak_soil_force,
          "meta_json": np.array(dumps_json(res.meta, indent=None))},
-        compress=True,
     )]
+    tell(written[0])
+    ok = np.nonzero(np.isfinite(res.peak_soil_force))[0]
+    written.append(write_peaks_csv(d / "peaks.csv", res.sleeper_index[ok], res.sleeper_x[ok], res.peak_soil_force[ok]))
+    tell(written[-1])
     if not csv_files:
         return written
     rows = np.arange(0, res.t.size, int(res.meta.get("snapshot_every", 1)))
@@ -610,12 +689,12 @@ def write_coupled_history(res: CoupledResult, out: str | Path, csv_files: bool =
             "x": res.wheel_position[rows], "P": res.wheel_load[rows], "delta": res.compression[rows],
             "z": res.wheel_displacement[rows], "w": res.rail_deflection[rows], "r": res.irregularity[rows],
         })
-    kk, jj = np.nonzero(np.isfinite(res.soil_force))
+    tell(d / "wheels.csv")
+    kk, jj = np.nonzero(np.isfinite(sf))
+    g = first_col[kk] + jj
     with (d / "sleepers.csv").open("w", encoding="utf-8") as fh:
         fh.write(",".join(SLEEPER_CSV_COLUMNS) + "\n")
-        append_sleeper_rows(fh, res.t_out[kk], res.sleeper_index[jj], res.sleeper_x[jj],
-                            {"soil_force": res.soil_force[kk, jj],
-                             "rail_deflection": res.sleeper_rail_deflection[kk, jj]})
-    ok = np.nonzero(np.isfinite(res.peak_soil_force))[0]
-    write_peaks_csv(d / "peaks.csv", res.sleeper_index[ok], res.sleeper_x[ok], res.peak_soil_force[ok])
-    return [*written, d / "wheels.csv", d / "sleepers.csv", d / "peaks.csv"]
+        append_sleeper_rows(fh, res.t_out[kk], res.sleeper_index[g], res.sleeper_x[g],
+                            {"soil_force": sf[kk, jj], "rail_deflection": rd[kk, jj]})
+    tell(d / "sleepers.csv")
+    return [*written, d / "wheels.csv", d / "sleepers.csv"]

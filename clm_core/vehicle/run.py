@@ -25,6 +25,7 @@ from typing import Any, Literal, cast
 from clm_core import settings
 from clm_core.errors import ParameterError
 from clm_core.params import ModelParams
+from clm_core.peaks import wheel_load_statistics
 from clm_core.vehicle import irregularity as ir
 from clm_core.vehicle.coupled import CoupledResult, CoupledSimulation
 from clm_core.vehicle.multibody import Train, build_train
@@ -279,6 +280,8 @@ def simulate_vehicle(
     summary = res.summary()
     summary.update({"settings": run.settings})
     summary["sleeper_passing_frequency_Hz"] = sim.speed / params.track.spacing if sim.speed > 0 else None
+    summary.update(wheel_load_statistics(res.wheel_load, res.static_wheel_load, (res.t >= summary["stats_from_s"])
+                                         & res.peak_window().instants(res.wheel_position.max(axis=1))))
     return run, res, summary
 
 
@@ -292,13 +295,14 @@ def run_vehicle(
     spec : VehicleRunSpec
     params : ModelParams
     out_dir : str or Path
-        Output directory (created): ``vehicle_history.npz``, ``wheels.csv``,
-        ``sleepers.csv``, ``peaks.csv``, plots and ``summary.json``
-        (layouts in :mod:`clm_core.io.history`).
+        Output directory (created): ``vehicle_history.npz``, ``peaks.csv``,
+        with ``csv_files`` ``wheels.csv`` and ``sleepers.csv`` (layouts in
+        :mod:`clm_core.io.history`), the figures
+        (:data:`clm_core.io.plots.VEHICLE_FIGURES`) and ``summary.json``.
     csv_files : bool
         Also write the CSV files.
     progress : bool
-        Show a progress bar (on a terminal).
+        Show progress bars (on a terminal): the stepping, then the writing.
 
     Returns
     -------
@@ -307,19 +311,50 @@ def run_vehicle(
         ``rms_wheel_load_N``, ``rms_dynamic_wheel_load_N``,
         ``peak_sleeper_soil_force_N``, ``max_rail_deflection_m``,
         ``contact_loss_steps``, ``contact_loss_events``, ``real_time_factor``
-        (simulated / wall time of the stepping), ``peak_exclusion`` (which
-        part of the run the peaks come from) and ``settings``.
+        (simulated / wall time of the stepping), ``compute_wall_time_s``,
+        the wheel-load statistics (:func:`clm_core.peaks.wheel_load_statistics`:
+        ``wheel_load_dynamic_std_N``, ``dynamic_factor``, ...), the envelope
+        (:meth:`clm_core.peaks.SleeperEnvelope.describe`), ``peak_exclusion``
+        (which part of the run the peaks come from) and ``settings``.
     """
-    from clm_core.io.files import write_json
-    from clm_core.io.history import write_coupled_history
-    from clm_core.io.plots import plot_vehicle_run
+    import time
 
+    from clm_core.io.files import write_json
+    from clm_core.io.plots import VEHICLE_FIGURES
+    from clm_core.progress import Progress
+
+    tic, cpu = time.perf_counter(), time.process_time()
     run, res, summary = simulate_vehicle(spec, params, progress=progress)
+    summary["compute_wall_time_s"] = time.perf_counter() - tic
+    summary["compute_cpu_time_s"] = time.process_time() - cpu
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     s = run.settings
-    write_coupled_history(res, out, csv_files=csv_files)
-    plot_vehicle_run(res, out, title=f"{s['vehicle']} x{len(s['cars'])}, {run.simulation.speed:g} m/s, {s['model']}, "
-                     f"irregularity {s['irregularity']}")
-    write_json(out / "summary.json", summary)
+    with Progress(2 + 2 * csv_files + len(VEHICLE_FIGURES) + 1, "clm simulate: writing", unit="file",
+                  enabled=None if progress else False) as bar:
+        def wrote(p: Path) -> None:
+            bar.stage(p.name)
+            bar.update(1)
+
+        summary.update(write_vehicle_outputs(res, out, csv_files, f"{s['vehicle']} x{len(s['cars'])}, "
+                                             f"{run.simulation.speed:g} m/s, {s['model']}, irregularity "
+                                             f"{s['irregularity']}", wrote))
+        write_json(out / "summary.json", summary)
+        wrote(out / "summary.json")
     return summary
+
+
+def write_vehicle_outputs(res: CoupledResult, out: Path, csv_files: bool, title: str,
+                          on_file: Any = None) -> dict[str, Any]:
+    """The files of a vehicle run (history, CSV on request, figures); return the envelope's summary entries."""
+    from clm_core.io.history import window_columns, write_coupled_history
+    from clm_core.io.plots import plot_vehicle_run
+    from clm_core.peaks import sleeper_envelope
+
+    first, sf = window_columns(res.soil_force)
+    write_coupled_history(res, out, csv_files=csv_files, on_file=on_file, window=(first, sf))
+    lo = int(res.sleeper_index[0]) if res.sleeper_index.size else 0
+    env = sleeper_envelope(first + lo, sf, res.sleeper_index, res.peak_soil_force)
+    plot_vehicle_run(res, out, title=title, envelope=env, on_file=on_file)
+    window = res.peak_window()
+    return env.describe(window.sleepers(env.sleeper_index * window.spacing))

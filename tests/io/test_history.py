@@ -18,8 +18,10 @@ from clm_core.io.history import (
     HistoryWriter,
     append_wheel_rows,
     load_history,
+    read_vehicle_history,
     read_wheels_csv,
     wheels_csv_header,
+    window_columns,
     write_coupled_history,
 )
 from clm_core.params import load_model
@@ -89,7 +91,7 @@ def test_vehicle_files_share_the_layout(tmp_path: Path, mev) -> None:  # type: i
     train = build_train(load_vehicle("tram").cars(1))
     res = CoupledSimulation(train, mev, 20.0, 1e-4, x_start=15.0, snapshot_every=5, duration_hint=0.05).run(0.05)
     written = write_coupled_history(res, tmp_path)
-    assert [p.name for p in written] == ["vehicle_history.npz", "wheels.csv", "sleepers.csv", "peaks.csv"]
+    assert [p.name for p in written] == ["vehicle_history.npz", "peaks.csv", "wheels.csv", "sleepers.csv"]
     W = res.wheel_load.shape[1]
     assert (tmp_path / "wheels.csv").read_text().splitlines()[0] == wheels_csv_header(W)
     tab = read_wheels_csv(tmp_path / "wheels.csv")
@@ -112,6 +114,36 @@ def test_vehicle_files_share_the_layout(tmp_path: Path, mev) -> None:  # type: i
     with np.load(tmp_path / "vehicle_history.npz") as z:
         np.testing.assert_array_equal(z["wheel_load"], res.wheel_load)
         assert json.loads(str(z["meta_json"]))["speed"] == pytest.approx(20.0)
+    # the NPZ round trip: the window-relative sleeper fields expand back to the run's arrays, bit for bit
+    back = read_vehicle_history(tmp_path / "vehicle_history.npz")
+    for name in ("soil_force", "sleeper_rail_deflection"):
+        np.testing.assert_array_equal(back[name], getattr(res, name))
+    for name in ("t", "wheel_load", "compression", "t_out", "sleeper_index", "peak_soil_force"):
+        np.testing.assert_array_equal(back[name], getattr(res, name))
+    assert back["meta"]["speed"] == pytest.approx(20.0)
+    compact = read_vehicle_history(tmp_path / "vehicle_history.npz", dense=False)
+    assert compact["soil_force"].shape[1] < res.soil_force.shape[1] and compact["first_sleeper"].size == res.t_out.size
+
+
+def test_window_columns_keep_every_finite_value() -> None:
+    rng = np.random.default_rng(2)
+    dense = np.full((30, 50), np.nan)
+    for k in range(30):
+        a = int(rng.integers(0, 45))
+        w = int(rng.integers(1, 9))
+        dense[k, a: a + w] = rng.normal(size=min(w, 50 - a))
+    dense[7] = np.nan  # a row without values
+    first, compact = window_columns(dense)
+    spans = [np.flatnonzero(np.isfinite(r)) for r in dense if np.isfinite(r).any()]
+    assert compact.shape == (30, max(int(c[-1] - c[0] + 1) for c in spans))
+    for k in range(30):
+        for j in range(compact.shape[1]):
+            c = first[k] + j
+            want = dense[k, c] if c < 50 else np.nan
+            assert (np.isnan(want) and np.isnan(compact[k, j])) or want == compact[k, j]
+    assert np.isfinite(compact).sum() == np.isfinite(dense).sum()
+    with pytest.raises(InputError, match="shape"):
+        window_columns(np.zeros(3))
 
 
 def test_read_wheels_csv_reads_the_earlier_layouts(tmp_path: Path) -> None:

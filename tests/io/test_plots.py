@@ -34,8 +34,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 #: Every figure file of the suite (clm_core.io.plots module docstring).
 CORE_FIGURES = {"receptance.png", "chain.png", "simulate.png", "wheel_loads.png", "soil_forces.png", "spectra.png",
-                "transfer_functions.png", "sums.png", "time_histories.png", "receptances.png"}
-DEMO_FIGURES = {"sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png"}
+                "third_octave.png", "transfer_functions.png", "sums.png", "time_histories.png", "receptances.png"}
+DEMO_FIGURES = set(plots.DEMO_FIGURES)
 
 
 @pytest.fixture(scope="module")
@@ -270,3 +270,146 @@ def test_drawing_leaves_the_users_backend_and_pyplot_alone(tmp_path: Path) -> No
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=REPO)
     assert r.returncode == 0, r.stdout + r.stderr
     assert png_problems(tmp_path / "r.png") == []
+
+
+# ----------------------------------------------------------------------------- report-grade outputs (issue 23)
+
+
+def _peak_lines(fig: Figure) -> list[str]:
+    return [str(ln.get_label()) for ln in fig.axes[0].get_lines() if str(ln.get_label()).endswith(", peak")]
+
+
+@pytest.mark.parametrize("run", ["simulate", "vehicle"])
+def test_the_peak_sleeper_is_plotted_and_marked_on_the_envelope(
+    rendered: tuple[Path, list[tuple[Path, Figure]]], run: str,
+) -> None:
+    import json
+
+    root, record = rendered
+    s = json.loads((root / run / "summary.json").read_text())
+    fig = _figure(record, f"{run}/soil_forces.png")
+    g = s["envelope_peak_sleeper_index"]
+    # the peak sleeper's history is among those drawn, and it reaches the envelope's peak (recorded instants)
+    assert len(_peak_lines(fig)) == 1 and _peak_lines(fig)[0].startswith(f"sleeper {g} ")
+    line = next(ln for ln in fig.axes[0].get_lines() if str(ln.get_label()).endswith(", peak"))
+    assert np.nanmax(np.asarray(line.get_ydata(), float)) <= s["envelope_peak_soil_force_N"] / 1e3 + 1e-9
+    # the envelope's marker sits at the reported peak
+    marker = next(ln for ln in fig.axes[1].get_lines() if str(ln.get_label()).startswith("peak: sleeper"))
+    assert np.asarray(marker.get_ydata(), float)[0] == pytest.approx(s["envelope_peak_soil_force_N"] / 1e3)
+    assert s["envelope_peak_soil_force_N"] == pytest.approx(s["peak_sleeper_soil_force_N"], rel=1e-12)
+    assert s["envelope_peak_sleeper_index"] == s["peak_sleeper_index"]
+    # tensile forces are flagged in the figure when there are any
+    title = fig.axes[1].get_title()
+    assert ("NOTE: tensile" in title) == (s["tensile_sleepers"] > 0)
+    assert (s["envelope_min_soil_force_N"] < 0) == (s["tensile_sleepers"] > 0)
+
+
+def test_wheel_loads_show_the_static_load_and_the_dynamic_factor(
+    rendered: tuple[Path, list[tuple[Path, Figure]]],
+) -> None:
+    import json
+
+    root, record = rendered
+    s = json.loads((root / "vehicle" / "summary.json").read_text())
+    fig = _figure(record, "vehicle/wheel_loads.png")
+    panels = [ax for ax in fig.axes if ax.get_ylabel().startswith("wheel ") and "[kN]" in ax.get_ylabel()]
+    for i, ax in enumerate(panels):
+        static = [ln for ln in ax.get_lines() if ln.get_label() == "static wheel load"]
+        assert len(static) == 1 and np.asarray(static[0].get_ydata(), float)[0] == pytest.approx(
+            s["wheel_load_static_N"][i] / 1e3)
+        load = next(ln for ln in ax.get_lines() if ln.get_label() == "wheel load")
+        df = float(re.search(r"dynamic factor max/static ([0-9.]+)", ax.get_title("right")).group(1))  # type: ignore[union-attr]
+        assert df == pytest.approx(np.nanmax(np.asarray(load.get_ydata(), float)) / (s["wheel_load_static_N"][i] / 1e3),
+                                   abs=6e-4)
+    # the summary names the dynamic part and keeps the rms of the load apart
+    assert 0 < s["wheel_load_dynamic_std_N"] < 0.2 * s["rms_wheel_load_N"]
+    static = s["wheel_load_static_N"]
+    assert max(static) - min(static) < 1e-9 * max(static)  # one static load: the factor is the peak over it
+    assert s["dynamic_factor"] == pytest.approx(s["peak_wheel_load_N"] / static[0], rel=1e-12)
+
+
+def test_spectra_and_bands_have_units_and_the_ground_vibration_band(
+    rendered: tuple[Path, list[tuple[Path, Figure]]],
+) -> None:
+    _, record = rendered
+    fig = _figure(record, "vehicle/spectra.png")
+    left = [ax for ax in fig.axes if ax.get_xlim() == (0.0, 80.0)]
+    assert [ax.get_ylabel().split("\n")[0] for ax in left] == ["wheel load", "soil force", "rail deflection"]
+    assert [ax.get_ylabel().split("[")[1] for ax in left] == ["kN]", "kN]", "mm]"]
+    bands = _figure(record, "vehicle/third_octave.png")
+    for ax in bands.axes:
+        assert "band rms [" in ax.get_ylabel() and "centre frequency [Hz]" in ax.get_xlabel()
+        labels = [t.get_text() for t in ax.get_xticklabels()]
+        assert labels[:4] == ["1", "2", "4", "8"] and "63" in labels  # nominal centres, every third band
+
+
+def test_the_report_page_has_headlines_with_units_and_captioned_figures(
+    rendered: tuple[Path, list[tuple[Path, Figure]]],
+) -> None:
+    import json
+
+    from clm_core.io.report_index import CAPTIONS
+
+    root, _ = rendered
+    text = (root / "vehicle" / "index.html").read_text()
+    s = json.loads((root / "vehicle" / "summary.json").read_text())
+    row = re.search(r"<tr><td>Dynamic part of the wheel load \(std about the static load\)</td>"
+                    r'<td class="v">([^<]+)</td><td>kN</td><td class="k">wheel_load_dynamic_std_N</td></tr>', text)
+    assert row is not None and float(row.group(1)) == pytest.approx(s["wheel_load_dynamic_std_N"] / 1e3, rel=1e-3)
+    assert re.search(r"<td>Peak sleeper soil force \(ballast on soil\)</td><td class=\"v\">[0-9.]+</td><td>kN</td>",
+                     text)
+    for name in ("wheel_loads.png", "soil_forces.png", "spectra.png", "third_octave.png"):
+        assert f'<img src="{name}"' in text
+        assert f"<figcaption><b>{name}</b>: {CAPTIONS[name]}" in text.replace("&#x27;", "'")
+    # the figures come before the data files, and CSV files are not written by default
+    assert text.index("<figure>") < text.index("data: ")
+    assert not (root / "vehicle" / "sleepers.csv").exists() and (root / "vehicle" / "peaks.csv").exists()
+
+
+def test_screenshot_of_the_report_in_headless_chromium(
+    rendered: tuple[Path, list[tuple[Path, Figure]]], tmp_path: Path,
+) -> None:
+    import shutil
+
+    if not (shutil.which("chromium") or shutil.which("chromium-browser")):
+        pytest.skip("chromium is not installed (Debian package chromium): the report's screenshot is not taken")
+    root, _ = rendered
+    shot = tmp_path / "report.png"
+    r = subprocess.run(["bash", str(REPO / "scripts" / "screenshot-report.sh"), str(root / "vehicle"), str(shot),
+                        "1200x1800"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    from matplotlib.image import imread
+
+    img = imread(shot)[..., :3]
+    assert img.shape[:2] == (1800, 1200) and png_problems(shot) == []
+    # the page shows the figures, not only text: a share of coloured (non-grey) pixels as in the PNG figures
+    colour = np.ptp(img, axis=2) > 0.15
+    assert colour.mean() > 0.002
+    r = subprocess.run(["bash", str(REPO / "scripts" / "screenshot-report.sh"), str(tmp_path / "none")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "no " in r.stderr and "index.html" in r.stderr
+
+
+def test_demo_report_marks_the_peak_over_the_admitted_sleepers(tmp_path: Path) -> None:
+    """plot_demo with the launcher's admitted sleepers marks the summary's peak sleeper, not a larger one outside."""
+    t = np.linspace(0.0, 1.0, 500)
+    x = 0.6 * np.arange(30.0)
+    force = 30e3 * np.exp(-(((np.arange(30)[None, :] - 30 * t[:, None]) / 2.0) ** 2))
+    force[:, 2] *= 2.0  # the largest force, at a sleeper outside the admitted ones
+    loads = np.full((500, 2), 80e3) + 5e3 * np.sin(2 * np.pi * 40 * t)[:, None]
+    admitted = np.zeros(30, bool)
+    admitted[5:25] = True
+    figs: dict[str, Figure] = {}
+    plots.figure_observers.append(lambda fig, path: figs.__setitem__(path.name, fig))
+    try:
+        plots.plot_demo(tmp_path, t, force, 100, t[200], x, force[200] / 30e6, force[200], t, loads,
+                        static_wheel_load=np.array([80e3, 80e3]), speed=30.0, admitted_sleepers=admitted)
+    finally:
+        plots.figure_observers.pop()
+    fig = figs["soil_forces.png"]
+    marker = next(ln for ln in fig.axes[1].get_lines() if str(ln.get_label()).startswith("peak: sleeper"))
+    g = int(str(marker.get_label()).split()[2].rstrip(","))
+    assert 105 <= g < 125 and np.asarray(marker.get_ydata(), float)[0] == pytest.approx(
+        np.nanmax(force[:, 5:25]) / 1e3)
+    assert _peak_lines(fig) and _peak_lines(fig)[0].startswith(f"sleeper {g} ")
+    assert all(not figure_problems(f) for f in figs.values())

@@ -12,12 +12,19 @@ Figures (file, function, command that writes it):
 ``receptance.png``              :func:`plot_receptance`        ``clm receptance``, ``clm report``
 ``chain.png``                   :func:`plot_chain`             ``clm soil-chain``, ``clm report``
 ``simulate.png``                :func:`plot_run`               ``clm simulate`` (moving loads)
+``soil_forces.png``,            :func:`plot_run_report`        ``clm simulate`` (moving loads)
+``spectra.png``,
+``third_octave.png``
 ``wheel_loads.png``,            :func:`plot_vehicle_run`       ``clm simulate --vehicle``
 ``soil_forces.png``,
-``spectra.png``
+``spectra.png``,
+``third_octave.png``
 ``sleeper_soil_forces.png``,    :func:`plot_demo`              ``clm demo``
 ``rail_deflection.png``,
-``wheel_loads.png``
+``wheel_loads.png``,
+``soil_forces.png``,
+``spectra.png``,
+``third_octave.png``
 ``transfer_functions.png``,     :func:`plot_calibration`       ``clm calibrate``
 ``sums.png``,
 ``time_histories.png``
@@ -38,11 +45,22 @@ that lie on each other are told apart by dashes, markers and drawing order.
 from clm_core.io.plots._base import MAX_WHEEL_PANELS, figure_observers
 from clm_core.io.plots.calibration import plot_calibration, plot_soil_calibration
 from clm_core.io.plots.frequency import plot_chain, plot_receptance
-from clm_core.io.plots.runs import plot_demo, plot_run, plot_vehicle_run
+from clm_core.io.plots.runs import (
+    DEMO_FIGURES,
+    RUN_FIGURES,
+    VEHICLE_FIGURES,
+    plot_demo,
+    plot_run,
+    plot_run_report,
+    plot_vehicle_run,
+)
 from clm_core.io.plots.studies import plot_critical_speed, plot_exceedance, plot_study
 
 __all__ = [
+    "DEMO_FIGURES",
     "MAX_WHEEL_PANELS",
+    "RUN_FIGURES",
+    "VEHICLE_FIGURES",
     "figure_observers",
     "plot_calibration",
     "plot_chain",
@@ -51,6 +69,7 @@ __all__ = [
     "plot_exceedance",
     "plot_receptance",
     "plot_run",
+    "plot_run_report",
     "plot_soil_calibration",
     "plot_study",
     "plot_vehicle_run",

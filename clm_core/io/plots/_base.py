@@ -214,13 +214,50 @@ def _anchored_outside(leg: Legend, ax: Axes) -> bool:
 
 
 def save(fig: Figure, path: str | Path) -> Path:
-    """Lay out, place the legends, tell the observers, write the PNG."""
+    """Lay out, place the legends (a figure without axes legends is laid out once, by savefig, unless observers
+    look at it), tell the observers, write the PNG."""
     p = Path(path)
-    _place_legends(fig)
+    if any(ax.get_legend() is not None for ax in fig.axes):
+        _place_legends(fig)
+    elif figure_observers:  # they look at a laid-out figure; savefig lays it out itself
+        fig.draw_without_rendering()
     for observe in figure_observers:
         observe(fig, p)
     fig.savefig(p, dpi=_DPI)
     return p
+
+
+#: Most points drawn per curve of a long record (:func:`decimate`): a figure is 1350 px wide.
+MAX_POINTS = 2400
+
+
+def decimate(x: Array, y: Array, most: int = MAX_POINTS, log: bool = False) -> tuple[Array, Array]:
+    """Fewer points of a long curve that draw the same picture: the smallest and the largest value of each bin.
+
+    ``most // 2`` bins of equal width in x (in log x with ``log``); each keeps its minimum and maximum in
+    their order, so every extreme of the curve, and its global maximum and minimum, stay drawn exactly.
+    Curves of at most ``most`` points are returned as they are; longer ones lose their NaN points
+    (and, with ``log``, those at x <= 0).
+    """
+    xa, ya = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    if xa.size <= most:
+        return xa, ya
+    ok = np.isfinite(xa) & np.isfinite(ya) & ((xa > 0) if log else True)
+    xa, ya = xa[ok], ya[ok]
+    if xa.size <= most:
+        return xa, ya
+    u = np.log(xa) if log else xa
+    nb = max(1, most // 2)
+    edges = np.linspace(u[0], u[-1], nb + 1) if u[-1] > u[0] else np.array([u[0], u[0] + 1.0])
+    b = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, edges.size - 2)
+    starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
+    keep = np.zeros(xa.size, dtype=bool)
+    for s0, e0 in zip(starts, np.r_[starts[1:], xa.size], strict=True):
+        seg = ya[s0:e0]
+        keep[s0 + int(np.argmax(seg))] = True
+        keep[s0 + int(np.argmin(seg))] = True
+    keep[0] = keep[-1] = True
+    return xa[keep], ya[keep]
 
 
 def pick_wheels(n_wheels: int, most: int = MAX_WHEEL_PANELS) -> list[int]:
@@ -231,17 +268,20 @@ def pick_wheels(n_wheels: int, most: int = MAX_WHEEL_PANELS) -> list[int]:
 
 
 def wheel_panels(axs: Sequence[Axes], t: Array, P: Array, wheels: list[int], static: Array | None) -> None:
-    """One panel per wheel, same load scale: load [kN] over time, static load dashed, max/min in the title."""
+    """One panel per wheel, same load scale: load [kN] over time, static load dashed, max/min and the dynamic
+    factor (max / static) in the title."""
     for ax, i in zip(axs, wheels, strict=True):
         if ax is not axs[0]:
             ax.sharey(axs[0])
         p = P[:, i]
-        ax.plot(t, p / 1e3, color="C0", lw=0.8, label="wheel load")
+        ax.plot(*decimate(t, p / 1e3), color="C0", lw=0.8, label="wheel load")
         if static is not None:
             ax.axhline(static[i] / 1e3, color="0.25", ls="--", lw=0.8, label="static wheel load")
         ax.set_ylabel(f"wheel {i}\n[kN]")
         if np.isfinite(p).any():
-            ax.set_title(f"max {np.nanmax(p) / 1e3:.1f} kN, min {np.nanmin(p) / 1e3:.1f} kN", loc="right",
+            df = (f", dynamic factor max/static {np.nanmax(p) / static[i]:.3f}"
+                  if static is not None and static[i] > 0 else "")
+            ax.set_title(f"max {np.nanmax(p) / 1e3:.1f} kN, min {np.nanmin(p) / 1e3:.1f} kN{df}", loc="right",
                          fontsize=7.5, pad=2)
 
 

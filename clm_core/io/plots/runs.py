@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.figure import Figure
+from numpy.typing import NDArray
 
 from clm_core.arrays import Array
 from clm_core.io.plots._base import (
+    decimate,
     figure_legend,
     legend,
     new_figure,
@@ -18,10 +21,20 @@ from clm_core.io.plots._base import (
     style,
     wheel_panels,
 )
+from clm_core.io.plots.report import Quantity, Record, pick_series, plot_soil_forces, report_figures, uniform
+from clm_core.peaks import SleeperEnvelope, sleeper_envelope
 
 if TYPE_CHECKING:
     from clm_core.io.history import RunDigest
     from clm_core.vehicle.coupled import CoupledResult
+
+#: Figures of a vehicle run (:func:`plot_vehicle_run`), in the order written.
+VEHICLE_FIGURES = ("wheel_loads.png", "soil_forces.png", "spectra.png", "third_octave.png")
+#: Figures of the ROS demo (:func:`plot_demo`).
+DEMO_FIGURES = ("sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png", "soil_forces.png",
+                "spectra.png", "third_octave.png")
+#: Report figures of a moving-load run beside ``simulate.png`` (:func:`plot_run_report`).
+RUN_FIGURES = ("soil_forces.png", "spectra.png", "third_octave.png")
 
 
 def plot_run(
@@ -59,7 +72,7 @@ def plot_run(
                 col = g - first
                 ok = np.nonzero((col >= 0) & (col < sf.shape[1]))[0]
                 if ok.size:
-                    ax1.plot(t[ok], sf[ok, col[ok]] / 1e3, label=f"sleeper {g} (x = {g * spacing:.1f} m)")
+                    ax1.plot(*decimate(t[ok], sf[ok, col[ok]] / 1e3), label=f"sleeper {g} (x = {g * spacing:.1f} m)")
         ax1.set_xlabel("time [s]")
         ax1.set_ylabel("soil force under sleeper [kN]")
         if sleepers:
@@ -77,8 +90,15 @@ def plot_run(
     return fig
 
 
-def plot_vehicle_run(res: CoupledResult, out: str | Path, title: str = "") -> list[Path]:
-    """``wheel_loads.png``, ``soil_forces.png`` and ``spectra.png`` of a coupled vehicle run.
+def plot_vehicle_run(res: CoupledResult, out: str | Path, title: str = "", envelope: SleeperEnvelope | None = None,
+                     on_file: Callable[[Path], None] | None = None) -> list[Path]:
+    """The figures of a coupled vehicle run (:data:`VEHICLE_FIGURES`).
+
+    ``wheel_loads.png`` (one panel per wheel, static load dashed, dynamic
+    factor in the title), ``soil_forces.png`` (time histories with the peak
+    sleeper, the envelope along the track), ``spectra.png`` and
+    ``third_octave.png`` (wheel loads about their static value, soil force of
+    the peak sleeper, rail deflection under wheel 0).
 
     Parameters
     ----------
@@ -88,90 +108,123 @@ def plot_vehicle_run(res: CoupledResult, out: str | Path, title: str = "") -> li
         Output directory (must exist).
     title : str
         Title of the wheel-load figure.
+    envelope : SleeperEnvelope, optional
+        The soil-force envelope (:func:`clm_core.peaks.sleeper_envelope`); default from ``res``.
+    on_file : callable, optional
+        Called with each file once written.
 
     Returns
     -------
     list of Path
         The PNG files written.
     """
-    from scipy.signal import welch
-
     d = Path(out)
     nw = res.wheel_load.shape[1]
     wheels = pick_wheels(nw)
     written = []
+    tell = on_file or (lambda _p: None)
     with style():
         n = len(wheels) + 1
         fig, axs = new_figure(n, 1, (9.0, 1.3 * n + 1.2), sharex=True,
                            gridspec_kw={"height_ratios": [1.0] * len(wheels) + [1.2]})
         wheel_panels(list(axs[:-1, 0]), res.t, res.wheel_load, wheels, res.static_wheel_load)
         ax = axs[-1, 0]
-        ax.plot(res.t, res.irregularity[:, 0] * 1e3, color="C2", lw=0.8, label="irregularity r under wheel 0 (down +)")
-        ax.plot(res.t, res.rail_deflection[:, 0] * 1e3, color="C1", lw=0.8, label="rail deflection under wheel 0")
+        ax.plot(*decimate(res.t, res.irregularity[:, 0] * 1e3), color="C2", lw=0.8,
+                label="irregularity r under wheel 0 (down +)")
+        ax.plot(*decimate(res.t, res.rail_deflection[:, 0] * 1e3), color="C1", lw=0.8,
+                label="rail deflection under wheel 0")
         ax.set_ylabel("wheel 0\n[mm]")
         ax.set_xlabel("time [s]")
         figure_legend(fig, list(axs[:, 0]))
         shown = "" if len(wheels) == nw else f" (wheels {', '.join(map(str, wheels))} of {nw})"
         fig.suptitle((title or "Wheel loads") + shown, fontsize=9.5)
         written.append(save(fig, d / "wheel_loads.png"))
+        tell(written[-1])
 
-        fig, axs = new_figure(2, 1, (9.0, 6.5))
-        a0, a1 = axs[:, 0]
-        counts = np.isfinite(res.soil_force).sum(axis=0)
-        finite_cols = np.nonzero(counts > 0)[0]
-        ok = np.isfinite(res.peak_soil_force)
-        if finite_cols.size:
-            pkv = np.where(ok, res.peak_soil_force, -np.inf)
-            good = np.nonzero((counts >= 0.5 * counts.max()) & (pkv >= 0.5 * pkv.max()))[0]
-            good = good if good.size else finite_cols
-            picks = good[np.linspace(0, good.size - 1, 4).round().astype(int)]
-            for j in np.unique(picks):
-                a0.plot(res.t_out, res.soil_force[:, j] / 1e3, lw=0.8,
-                        label=f"sleeper {int(res.sleeper_index[j])} (x = {res.sleeper_x[j]:.1f} m)")
-            legend(a0)
-        a0.set_xlabel("time [s]")
-        a0.set_ylabel("soil force [kN]")
-        a0.set_title("sleeper soil forces (ballast force on the soil, compression +)")
-        a1.plot(res.sleeper_x[ok], res.peak_soil_force[ok] / 1e3, ".-", ms=3, lw=0.6)
-        a1.set_xlabel("position along the line [m]")
-        a1.set_ylabel("peak soil force [kN]")
-        a1.set_title("largest soil force of each sleeper (every step)")
-        written.append(save(fig, d / "soil_forces.png"))
+    spacing = float(res.sleeper_x[1] - res.sleeper_x[0]) if res.sleeper_x.size > 1 else 0.6
+    lo = int(res.sleeper_index[0]) if res.sleeper_index.size else 0
+    if envelope is None:
+        fin = np.isfinite(res.soil_force)
+        first = np.where(fin.any(axis=1), np.argmax(fin, axis=1), 0)
+        cols = np.minimum(first[:, None] + np.arange(max(1, int(fin.sum(axis=1).max())))[None, :],
+                          res.sleeper_index.size - 1)
+        envelope = sleeper_envelope(first + lo, np.take_along_axis(res.soil_force, cols, axis=1),
+                                    res.sleeper_index, res.peak_soil_force)
+    window = res.peak_window()
+    admitted = window.sleepers(envelope.sleeper_index * spacing)
+    g_peak = int(envelope.describe(admitted)["envelope_peak_sleeper_index"])
+    held = np.isfinite(res.peak_soil_force)  # sleepers the window held (no pass over the (instants, sleepers) arrays)
+    good = np.flatnonzero(held & window.sleepers(res.sleeper_x))
+    good = good if good.size else np.flatnonzero(held)
+    picks = [int(res.sleeper_index[j]) for j in good[np.linspace(0, good.size - 1, min(3, good.size)).round()
+                                                       .astype(int)]] if good.size else []
+    series = []
+    for g in sorted({*picks, g_peak}):
+        y = res.soil_force[:, g - lo]
+        ok = np.isfinite(y)
+        series.append((g, res.t_out[ok], y[ok]))
+    written.append(plot_soil_forces(d / "soil_forces.png", series, g_peak, envelope, spacing,
+                                    "sleeper soil forces (ballast force on the soil, compression +)", admitted))
+    tell(written[-1])
 
-        fig, axs = new_figure(2, 1, (9.0, 6.5))
-        a0, a1 = axs[:, 0]
-        dt = float(res.t[1] - res.t[0]) if res.t.size > 1 else 1.0
-        sel = res.t >= float(res.meta.get("stats_from", 0.0))
-        V = float(res.meta.get("speed", 0.0))
-        spacing = float(res.sleeper_x[1] - res.sleeper_x[0]) if res.sleeper_x.size > 1 else 0.6
-        if sel.sum() > 16:
-            for i in wheels[:4]:
-                x = res.wheel_load[sel, i] - res.wheel_load[sel, i].mean()
-                f, S = welch(x, fs=1 / dt, nperseg=min(x.size, 4096))
-                a0.semilogy(f, np.maximum(S, 1e-30), lw=0.7, label=f"wheel {i}")
-            if V > 0:
-                a0.axvline(V / spacing, color="k", ls="--", lw=0.7, label=f"V/d = {V / spacing:.1f} Hz")
-            a0.set_xlim(0, min(0.5 / dt, 500.0))
-            legend(a0)
-        a0.set_xlabel("frequency [Hz]")
-        a0.set_ylabel("PSD of wheel load [N^2/Hz]")
-        a0.set_title("wheel loads (dynamic part)")
-        if finite_cols.size:
-            j = int(np.argmax(np.where(ok, res.peak_soil_force, -np.inf)))
-            y = res.soil_force[:, j]
-            fin = np.isfinite(y)
-            if fin.sum() > 16 and res.t_out.size > 1:
-                dto = float(res.t_out[1] - res.t_out[0])
-                yy = y[fin] - np.mean(y[fin])
-                f, S = welch(yy, fs=1 / dto, nperseg=min(yy.size, 1024))
-                a1.semilogy(f, np.maximum(S, 1e-30), lw=0.8, label=f"sleeper {int(res.sleeper_index[j])}")
-                a1.set_xlim(0, min(0.5 / dto, 250.0))
-                legend(a1)
-        a1.set_xlabel("frequency [Hz]")
-        a1.set_ylabel("PSD of soil force [N^2/Hz]")
-        a1.set_title("most loaded sleeper")
-        written.append(save(fig, d / "spectra.png"))
+    dt = float(res.t[1] - res.t[0]) if res.t.size > 1 else 1.0
+    sel = res.t >= float(res.meta.get("stats_from", 0.0))
+    loads = [Record(f"wheel {i} (static {res.static_wheel_load[i] / 1e3:.1f} kN removed)", res.wheel_load[sel, i], dt,
+                    float(res.static_wheel_load[i])) for i in wheels[:3]] if sel.sum() > 16 else []
+    peak_rec = uniform(res.t_out, res.soil_force[:, g_peak - lo])
+    rail = [Record("rail under wheel 0", res.rail_deflection[sel, 0], dt)] if sel.sum() > 16 else []
+    V = float(res.meta.get("speed", 0.0))
+    marks = [(V / spacing, f"V/d = {V / spacing:.1f} Hz")] if V > 0 else []
+    written += report_figures(d, [
+        Quantity("wheel load", "kN", 1e-3, loads),
+        Quantity("soil force", "kN", 1e-3, [Record(f"sleeper {g_peak} (peak)", *peak_rec)] if peak_rec else []),
+        Quantity("rail deflection", "mm", 1e3, rail),
+    ], (title or "Vehicle run"), marks, on_file=on_file)
     return written
+
+
+def plot_run_report(history_npz: str | Path, out: str | Path, title: str, admitted_x: tuple[float, float],
+                    on_file: Callable[[Path], None] | None = None) -> tuple[list[Path], SleeperEnvelope]:
+    """Report figures of a moving-load run (:data:`RUN_FIGURES`) from its ``history.npz``; and the envelope.
+
+    Parameters
+    ----------
+    history_npz : path
+        The run's ``history.npz``.
+    out : path
+        Output directory.
+    title : str
+        Title of the figures.
+    admitted_x : (float, float)
+        Positions [m] of the first and last sleeper the peaks are taken over (:class:`clm_core.peaks.PeakWindow`).
+    on_file : callable, optional
+        Called with each file once written.
+    """
+    d = Path(out)
+    with np.load(history_npz) as z:
+        t, first, sf = z["t"], z["first_sleeper"], z["soil_force"]
+        spacing = float(z["spacing"])
+        env = sleeper_envelope(first, sf, z["peak_sleeper_index"], z["peak_soil_force"])
+        wd = z["wheel_deflection"][:, 0] if z["wheel_deflection"].shape[1] else np.zeros(0)
+    x = env.sleeper_index * spacing
+    admitted = (x >= admitted_x[0] - 1e-9) & (x <= admitted_x[1] + 1e-9)
+    g_peak = int(env.describe(admitted)["envelope_peak_sleeper_index"])
+    ok = env.sleeper_index[admitted] if admitted.any() else env.sleeper_index
+    picks = [int(ok[int(round(q * (ok.size - 1)))]) for q in (0.0, 0.5, 1.0)]
+    written = [plot_soil_forces(d / "soil_forces.png", pick_series(first, sf, t, picks, g_peak), g_peak, env,
+                                spacing, "sleeper soil forces (ballast force on the soil, compression +)", admitted)]
+    if on_file:
+        on_file(written[-1])
+    peak_rec = None
+    s = pick_series(first, sf, t, [], g_peak)
+    if s:
+        peak_rec = uniform(s[0][1], s[0][2])
+    rail = uniform(t, wd) if wd.size else None
+    written += report_figures(d, [
+        Quantity("soil force", "kN", 1e-3, [Record(f"sleeper {g_peak} (peak)", *peak_rec)] if peak_rec else []),
+        Quantity("rail deflection", "mm", 1e3, [Record("rail under wheel 0", *rail)] if rail else []),
+    ], title, [], on_file=on_file)
+    return written, env
 
 
 def plot_demo(
@@ -185,8 +238,17 @@ def plot_demo(
     profile_force: Array,
     wheel_t: Array,
     wheel_load: Array,
+    static_wheel_load: Array | None = None,
+    speed: float | None = None,
+    admitted_sleepers: NDArray[np.bool_] | None = None,
 ) -> list[Path]:
-    """``sleeper_soil_forces.png``, ``rail_deflection.png``, ``wheel_loads.png`` of a demo bag.
+    """The figures of a demo bag (:data:`DEMO_FIGURES`).
+
+    ``sleeper_soil_forces.png``, ``rail_deflection.png``, ``wheel_loads.png``
+    as recorded; and the report figures of every run: ``soil_forces.png``
+    (the peak sleeper's history and the envelope along the track),
+    ``spectra.png`` and ``third_octave.png`` (wheel loads, soil force of the
+    peak sleeper; records resampled on their median message interval).
 
     Parameters
     ----------
@@ -208,6 +270,13 @@ def plot_demo(
         Times of the wheel-load messages [s] (same origin as ``t``).
     wheel_load : (p, W) array
         Wheel loads [N] (NaN: wheel absent from a message).
+    static_wheel_load : (W,) array, optional
+        Static wheel loads [N]: dashed in the wheel panels, removed before the spectra (default: the mean).
+    speed : float, optional
+        Train speed [m/s] (marks the sleeper-passing frequency V/d in the spectra).
+    admitted_sleepers : (n,) bool array, optional
+        The columns of ``soil_force`` the reported peak is taken over (:meth:`clm_core.peaks.PeakWindow.sleepers`),
+        so that the marked peak sleeper is the summary's; default the sleepers held 90 % of the longest time.
 
     Returns
     -------
@@ -258,10 +327,45 @@ def plot_demo(
         wheels = pick_wheels(wheel_load.shape[1])
         n = len(wheels)
         fig, axs = new_figure(n, 1, (9.0, 1.3 * n + 1.0), sharex=True)
-        wheel_panels(list(axs[:, 0]), wheel_t, wheel_load, wheels, None)
+        wheel_panels(list(axs[:, 0]), wheel_t, wheel_load, wheels, static_wheel_load)
         figure_legend(fig, list(axs[:, 0]))
         axs[-1, 0].set_xlabel("time [s]")
         shown = "" if n == wheel_load.shape[1] else f" (wheels {', '.join(map(str, wheels))} of {wheel_load.shape[1]})"
         fig.suptitle("Wheel loads (vehicle simulator node)" + shown, fontsize=9.5)
         written.append(save(fig, d / "wheel_loads.png"))
+    written += _demo_report(d, t, soil_force, first_sleeper, profile_x, wheel_t, wheel_load, static_wheel_load, speed,
+                            admitted_sleepers)
+    return written
+
+
+def _demo_report(d: Path, t: Array, soil_force: Array, first_sleeper: int, profile_x: Array, wheel_t: Array,
+                 wheel_load: Array, static: Array | None, speed: float | None,
+                 admitted_sleepers: NDArray[np.bool_] | None) -> list[Path]:
+    """``soil_forces.png``, ``spectra.png``, ``third_octave.png`` of the demo (see :func:`plot_demo`)."""
+    px = np.asarray(profile_x, dtype=float)
+    spacing = round(float(np.median(np.diff(px))), 9) if px.size > 1 else 0.6
+    first = np.full(t.size, int(first_sleeper))
+    env = sleeper_envelope(first, soil_force)
+    cover = np.isfinite(soil_force).sum(axis=0)
+    full = cover >= 0.9 * max(1, cover.max())
+    admitted = (full if admitted_sleepers is None else np.asarray(admitted_sleepers, bool))[
+        env.sleeper_index - first_sleeper]
+    g_peak = int(env.describe(admitted)["envelope_peak_sleeper_index"])
+    cols = np.flatnonzero(full)
+    picks = [first_sleeper + int(cols[int(round(q * (cols.size - 1)))]) for q in (0.0, 0.5, 1.0)] if cols.size else []
+    written = [plot_soil_forces(d / "soil_forces.png", pick_series(first, soil_force, t, picks, g_peak), g_peak, env,
+                                spacing, "sleeper soil forces (ballast force on the soil, compression +)", admitted,
+                                note="envelope over the sleepers passed while in the window")]
+    loads = []
+    for i in pick_wheels(wheel_load.shape[1])[:3]:
+        u = uniform(wheel_t, wheel_load[:, i])
+        if u is not None:
+            ref = float(static[i]) if static is not None else None
+            loads.append(Record(f"wheel {i} ({'static' if ref is not None else 'mean'} removed)", *u, ref))
+    peak = uniform(t, soil_force[:, g_peak - first_sleeper])
+    marks = [(speed / spacing, f"V/d = {speed / spacing:.1f} Hz")] if speed else []
+    written += report_figures(d, [
+        Quantity("wheel load", "kN", 1e-3, loads),
+        Quantity("soil force", "kN", 1e-3, [Record(f"sleeper {g_peak} (peak)", *peak)] if peak else []),
+    ], "clm demo", marks)
     return written
