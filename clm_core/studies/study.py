@@ -316,7 +316,7 @@ def run_study(spec: StudySpec, out: str | Path, *, scheduler: str | None = None,
     if figures:
         from clm_core.io.plots import plot_study
 
-        outcome.files += plot_study(outcome.rows, spec.varied, d, title=spec.name)
+        outcome.files += plot_study(outcome.rows, spec.varied, d, title=spec.name, fixed=spec.fixed)
     write_json(d / "study.json", {
         "name": spec.name, "description": spec.description, "source": spec.source, "kind": "vehicle",
         "fixed_settings": spec.fixed, "varied": spec.varied, "cases": len(items),
