@@ -91,11 +91,14 @@ class EngineInfo:
     workers: int = 0
     threads_per_worker: int = 1
     worker_names: list[str] = field(default_factory=list)
+    #: Per worker connected at the start: what its warm-up took (``warm_s``, ``lock_wait_s`` [s], ``error``).
+    warm: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return {"kind": self.kind, "scheduler": self.address, "workers": self.workers,
-                "threads_per_worker": self.threads_per_worker, "worker_processes": list(self.worker_names)}
+                "threads_per_worker": self.threads_per_worker, "worker_processes": list(self.worker_names),
+                "warm_up": list(self.warm)}
 
 
 class Engine:
@@ -109,8 +112,11 @@ class Engine:
         Local: worker processes (default: one per core). Remote: wait until
         this many workers are connected (default: at least one).
     warm : callable, optional
-        Run once on every worker before the tasks (imports, compiled code);
-        returns the worker's name.
+        Run once in every worker process before its first task, on the
+        workers connected now and on those that join later
+        (:class:`clm_core.studies.warm.WarmUp`, a worker plugin; one process
+        of a host at a time, so the others load the compiled code its first
+        process wrote to numba's cache).
     """
 
     def __init__(self, scheduler: str | None = None, workers: int | None = None,
@@ -147,7 +153,14 @@ class Engine:
                 self._client.wait_for_workers(n, timeout=START_TIMEOUT_S)
                 self.info = EngineInfo("local", str(self._cluster.scheduler_address), n)
             if self.warm is not None:
-                names = self._client.run(self.warm)
+                from clm_core.studies.runner import worker_name
+                from clm_core.studies.warm import WarmUp, warm_info
+
+                # on every worker now and on every worker that joins later, before its first case
+                self._client.register_plugin(WarmUp(self.warm), name=WarmUp.name)
+                warm = self._client.run(warm_info)
+                self.info.warm = [warm[a] for a in sorted(warm)]
+                names = self._client.run(worker_name)
                 self.info.worker_names = sorted(str(v) for v in names.values())
         except BaseException:
             self.close()
@@ -171,6 +184,13 @@ class Engine:
         workers = self._client.scheduler_info().get("workers", {})
         threads = max((int(w.get("nthreads", 1)) for w in workers.values()), default=1)
         self.info = EngineInfo("remote", addr, len(workers), threads)
+
+    @property
+    def client(self) -> Any:
+        """The ``distributed.Client`` (inside the with-block)."""
+        if self._client is None:
+            raise ClmError("Engine.client outside its with-block")
+        return self._client
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:

@@ -170,7 +170,8 @@ def calibrate_bag(bag: Shipped, method: str, options: Mapping[str, Any], files: 
     Returns
     -------
     dict
-        ``method``, ``model``, ``misfit``, ``rms_residual``, per fitted parameter ``<name>``, ``<name>_ci95_low``, ``<name>_ci95_high``,
+        ``method``, ``model``, ``misfit``, ``rms_residual``, per fitted
+        parameter ``<name>``, ``<name>_ci95_low``, ``<name>_ci95_high``,
         ``warnings`` (joined with `` | ``), then :data:`RUN_COLUMNS` and
         ``worker``; and :data:`OUTPUTS`: the files of
         :func:`clm_core.calibration.report.write_outputs` (``params.yaml``,
