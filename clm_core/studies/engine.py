@@ -8,8 +8,9 @@
   interface, without a dashboard;
 - an existing scheduler with ``scheduler='tcp://host:port'``: ``dask
   scheduler`` and ``dask worker`` started by the user on any hosts that
-  have clm_core installed (and see the same files, for file-based presets
-  and bags).
+  have the same clm_core installed (the files of the cases travel with them,
+  :mod:`clm_core.studies.inputs`); a worker connected at the start whose
+  code revision differs from the client's is refused before anything runs.
 
 :meth:`Engine.run` submits the tasks, hands each finished one to a callback
 as soon as it completes (the caller stores it and moves the progress bar)
@@ -152,6 +153,7 @@ class Engine:
                 self._client = dist.Client(self._cluster, timeout=f"{START_TIMEOUT_S}s")
                 self._client.wait_for_workers(n, timeout=START_TIMEOUT_S)
                 self.info = EngineInfo("local", str(self._cluster.scheduler_address), n)
+            self._check_code()
             if self.warm is not None:
                 from clm_core.studies.runner import worker_name
                 from clm_core.studies.warm import WarmUp, warm_info
@@ -184,6 +186,20 @@ class Engine:
         workers = self._client.scheduler_info().get("workers", {})
         threads = max((int(w.get("nthreads", 1)) for w in workers.values()), default=1)
         self.info = EngineInfo("remote", addr, len(workers), threads)
+
+    def _check_code(self) -> None:
+        """Refuse workers that run other clm_core code than this process (their cases would not be ours)."""
+        from clm_core.studies.inputs import code_revision
+
+        mine = code_revision()
+        theirs = self._client.run(code_revision)
+        other = sorted(f"{addr} (revision {rev[:12]})" for addr, rev in theirs.items() if rev != mine)
+        if other:
+            from clm_core import __version__
+
+            raise InputError(f"{len(other)} worker(s) run other clm_core code than this client (revision "
+                             f"{mine[:12]}, version {__version__}): {', '.join(other)}; install the same clm_core on "
+                             "every worker")
 
     @property
     def client(self) -> Any:

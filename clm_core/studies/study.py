@@ -6,8 +6,8 @@ calibrate FOLDER``) share one path (:func:`execute`):
 1. the output directory: created, or resumed when it holds a result store
    (``cases/``) of an earlier run, or refused when it holds anything else
    (unless ``overwrite``);
-2. the cases already in the store (same key: same settings, same
-   clm_core version) are reused, not recomputed; the others run on the
+2. the cases already in the store (same key: same settings, file contents,
+   parameter values and code revision, :mod:`clm_core.studies.inputs`) are reused, not recomputed; the others run on the
    engine (:class:`clm_core.studies.engine.Engine`), each stored atomically
    the moment it finishes (:class:`clm_core.studies.store.ResultStore`), with
    a progress bar on a terminal;

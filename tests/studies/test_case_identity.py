@@ -8,6 +8,7 @@ Nothing asserts wall time; the counts are of cases recomputed and reused.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -157,3 +158,41 @@ def test_shipped_content_is_rebuilt_without_the_clients_path(tmp_path: Path) -> 
     back = materialise(item, tmp_path / "worker")
     assert back.name == "bag" and (back / "sub" / "data.bin").read_bytes() == bytes(range(256))
     assert materialise(item, tmp_path / "worker") == back  # content-addressed: built once
+
+
+def test_a_worker_of_other_code_is_refused_at_connect(tmp_path: Path) -> None:
+    """A real ``dask worker`` importing a copy of clm_core with one edited file (same version string): the study
+    is refused before anything runs, naming the worker, exit code 2."""
+    import shutil
+    import subprocess
+
+    from clm_core.studies import inputs
+    from tests.clitools import run_clm
+    from tests.studies.cluster import DASK, ENV, dask_processes
+
+    root = Path(inputs.__file__).resolve().parents[1]
+    other = tmp_path / "other"
+    shutil.copytree(root, other / "clm_core", ignore=shutil.ignore_patterns("__pycache__"))
+    (other / "clm_core" / "peaks.py").write_text((root / "peaks.py").read_text() + "\n# another revision\n")
+    study = _study(tmp_path / "study.yaml")
+    (tmp_path / "soils").mkdir()
+    _soil(tmp_path / "soils" / "a.yaml", 5.0e6)
+    _soil(tmp_path / "soils" / "b.yaml", 8.0e6)
+    with dask_processes(tmp_path / "dask", workers=1) as address:
+        env = {**ENV, "PYTHONPATH": str(other)}  # this worker imports the edited copy
+        worker = subprocess.Popen([DASK, "worker", address, "--nthreads", "1", "--host", "127.0.0.1",
+                                   "--no-dashboard"], env=env, cwd=tmp_path, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL)
+        try:
+            check = subprocess.run([sys.executable, "-c", "import clm_core, sys; print(clm_core.__file__)"],
+                                   env=env, capture_output=True, text=True, cwd=tmp_path)
+            assert check.stdout.strip() == str(other / "clm_core" / "__init__.py")
+            res = run_clm(["study", str(study), "--out", str(tmp_path / "out"), "--scheduler", address,
+                           "--workers", "2"], env=ENV, cwd=str(tmp_path))
+        finally:
+            worker.terminate()
+            worker.wait(timeout=60)
+    assert res.returncode == 2, res.stderr
+    assert "1 worker(s) run other clm_core code than this client (revision" in res.stderr
+    assert "install the same clm_core on every worker" in res.stderr
+    assert not (tmp_path / "out" / "cases").exists() or not any((tmp_path / "out" / "cases").iterdir())
