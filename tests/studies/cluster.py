@@ -17,6 +17,8 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
+from distributed import Client
+
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
 DASK = str(Path(sys.executable).with_name("dask"))
 
@@ -36,7 +38,8 @@ def _stop(procs: Sequence[subprocess.Popen[bytes]]) -> None:
 @contextmanager
 def dask_processes(folder: Path, host: str = "127.0.0.1", workers: int = 1, prefix: Sequence[str] = (),
                    worker_cwd: Path | None = None, log: Path | None = None) -> Iterator[str]:
-    """``dask scheduler`` and ``dask worker --nworkers N --nthreads 1`` on ``host``; yields the scheduler address.
+    """``dask scheduler`` and ``dask worker --nworkers N --nthreads 1`` on ``host``; yields the scheduler address
+    once the N workers are connected (a loaded machine can take a minute to start them).
 
     Both run in ``worker_cwd`` (default ``folder``) behind ``prefix``; their
     logs go to ``log`` (default ``folder/dask.log``).
@@ -59,6 +62,8 @@ def dask_processes(folder: Path, host: str = "127.0.0.1", workers: int = 1, pref
         procs.append(subprocess.Popen([*prefix, DASK, "worker", address, "--nworkers", str(workers), "--nthreads", "1",
                                        "--host", host, "--no-dashboard"], env=ENV, cwd=cwd, stdout=out,
                                       stderr=subprocess.STDOUT))
+        with Client(address, timeout="120s") as client:  # connected before the test's own client waits (60 s)
+            client.wait_for_workers(workers, timeout=600)
         yield address
     finally:
         _stop(procs)

@@ -184,6 +184,10 @@ def test_a_worker_of_other_code_is_refused_at_connect(tmp_path: Path) -> None:
                                    "--no-dashboard"], env=env, cwd=tmp_path, stdout=subprocess.DEVNULL,
                                   stderr=subprocess.DEVNULL)
         try:
+            from distributed import Client
+
+            with Client(address, timeout="120s") as c:  # both connected before the study's own 60-s wait
+                c.wait_for_workers(2, timeout=600)
             check = subprocess.run([sys.executable, "-c", "import clm_core, sys; print(clm_core.__file__)"],
                                    env=env, capture_output=True, text=True, cwd=tmp_path)
             assert check.stdout.strip() == str(other / "clm_core" / "__init__.py")
