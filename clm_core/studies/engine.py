@@ -63,6 +63,36 @@ def _distributed() -> Any:
         raise InputError(f"studies need dask.distributed ({exc}); pip install 'dask[distributed]'") from None
 
 
+def _shipped_in(args: Sequence[Any]) -> list[Any]:
+    """The :class:`~clm_core.studies.inputs.Shipped` inputs among task arguments (direct, or values of a mapping)."""
+    from clm_core.studies.inputs import Shipped
+
+    out = []
+    for a in args:
+        if isinstance(a, Shipped):
+            out.append(a)
+        elif isinstance(a, Mapping):
+            out += [v for v in a.values() if isinstance(v, Shipped)]
+    return out
+
+
+def _swap_shipped(arg: Any, shared: Mapping[tuple[str, str, str], Any]) -> Any:
+    """``arg`` with each shared input replaced by its future (dask hands the task the data itself)."""
+    from clm_core.studies.inputs import Shipped
+
+    if isinstance(arg, Shipped):
+        return shared.get(_ident(arg), arg)
+    if isinstance(arg, Mapping) and any(isinstance(v, Shipped) for v in arg.values()):
+        return {k: shared.get(_ident(v), v) if isinstance(v, Shipped) else v for k, v in arg.items()}
+    return arg
+
+
+def _ident(item: Any) -> tuple[str, str, str]:
+    """What makes two shipped inputs the same object for a task: content, name and the client's path (the
+    outputs name it), not the content alone."""
+    return (str(item.sha256), str(item.name), str(item.source))
+
+
 def _process_cpu() -> float:
     """User + system CPU time of this process [s] (runs on a worker)."""
     import resource
@@ -241,6 +271,20 @@ class Engine:
             return 0.0
         return float(sum(self._client.run(_process_cpu).values()))
 
+    def _share_inputs(self, tasks: Sequence[Task]) -> dict[tuple[str, str, str], Any]:
+        """Shipped files that more than one task reads, sent to the workers once (``scatter``, to every worker,
+        so one lost worker loses no input): ``{(sha256, name, source): future}``. The others travel inside
+        their one task."""
+        from clm_core.studies.inputs import Shipped
+
+        count: dict[tuple[str, str, str], int] = {}
+        first: dict[tuple[str, str, str], Shipped] = {}
+        for t in tasks:
+            for item in _shipped_in(t.args):
+                count[_ident(item)] = count.get(_ident(item), 0) + 1
+                first.setdefault(_ident(item), item)
+        return {k: self._client.scatter(first[k], broadcast=True, hash=False) for k, n in count.items() if n > 1}
+
     def run(self, tasks: Sequence[Task], done: Callable[[Task, Mapping[str, Any] | None, str], None]) -> None:
         """Run every task; call ``done(task, row, '')`` as each finishes, in completion order.
 
@@ -252,9 +296,11 @@ class Engine:
         if self._client is None:
             raise ClmError("Engine.run outside its with-block")
         nonce = uuid.uuid4().hex[:8]
+        shared = self._share_inputs(tasks)
         futures = {}
         for t in tasks:
-            fut = self._client.submit(t.func, *t.args, key=f"clm-{t.key}-{nonce}", pure=False)
+            args = tuple(_swap_shipped(a, shared) for a in t.args)
+            fut = self._client.submit(t.func, *args, key=f"clm-{t.key}-{nonce}", pure=False)
             futures[fut.key] = (fut, t)
         for fut in as_completed([f for f, _ in futures.values()]):
             task = futures[fut.key][1]

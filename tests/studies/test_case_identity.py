@@ -200,3 +200,28 @@ def test_a_worker_of_other_code_is_refused_at_connect(tmp_path: Path) -> None:
     assert "1 worker(s) run other clm_core code than this client (revision" in res.stderr
     assert "install the same clm_core on every worker" in res.stderr
     assert not (tmp_path / "out" / "cases").exists() or not any((tmp_path / "out" / "cases").iterdir())
+
+
+def test_a_file_read_by_many_cases_is_sent_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The engine scatters a shipped file that several tasks read once to every worker, and the tasks get its
+    content (real 1-worker LocalCluster); a file read by one task travels inside it; equal content under
+    another name is another input (the outputs name it)."""
+    from clm_core.studies.engine import Engine, Task
+
+    monkeypatch.chdir(tmp_path)
+    _soil(tmp_path / "a.yaml", 4.0e6)
+    (tmp_path / "b.yaml").write_bytes((tmp_path / "a.yaml").read_bytes())
+    r = CaseResolver()
+    cases = [r.resolve({"track": "soil-study", "soil": s, "duration": 0.05, "speed": v, "irregularity": "none"})
+             for s, v in (("a.yaml", 30.0), ("a.yaml", 60.0), ("a.yaml", 90.0), ("b.yaml", 30.0))]
+    tasks = [Task(c.key, run_case, (c.settings, c.files, c.code)) for c in cases]
+    rows: dict[str, dict[str, Any]] = {}
+    with Engine(workers=1) as engine:
+        shared = engine._share_inputs(tasks)
+        assert [k[1] for k in shared] == ["a.yaml"]  # read by 3 tasks: sent once; b.yaml (1 task): in its task
+        engine.run(tasks, lambda t, row, _why: rows.update({t.key: dict(row or {})}))
+    assert len(rows) == 3  # a.yaml at 30 m/s and b.yaml at 30 m/s: the same content, the same case key
+    assert cases[0].key == cases[3].key
+    for c in cases:
+        alone = run_case(c.settings)
+        assert [rows[c.key][m] for m in SUMMARY_METRICS] == [alone[m] for m in SUMMARY_METRICS]
