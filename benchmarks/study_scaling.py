@@ -23,9 +23,17 @@ worst too, and CPU times (``cpu_time_s`` of each case in its worker, and
 ``getrusage`` of the whole study including its worker processes) give
 figures that do not depend on the other jobs.
 
+With ``--first-case``, it measures instead the compile-cache warm-up of the
+workers (:class:`clm_core.studies.warm.WarmUp`): the wall time of the first
+case on fresh worker processes of a local cluster, without the warm-up and
+with it, on a cold numba cache (``NUMBA_CACHE_DIR`` an empty folder: a new
+host) and on the cache this checkout already holds; with the warm-up, also
+each worker's warm-up time and how long it waited for the host's lock.
+
 Usage::
 
     python benchmarks/study_scaling.py [--cases 24] [--repeats 3] [--duration 2] [--json FILE]
+    python benchmarks/study_scaling.py --first-case [--workers 2] [--repeats 1] [--duration 2]
 
 Figures are printed, never asserted.
 """
@@ -112,6 +120,60 @@ def study(n_cases: int, duration: float, workers: int, tmp: Path, tag: str) -> d
     }
 
 
+def first_case(duration: float, workers: int, warm: bool, cold: bool) -> dict[str, Any]:
+    """Fresh local workers, one case each submitted at once: their wall times [s], warm-up or not, cold cache or not."""
+    from clm_core.studies.engine import Engine, Task
+    from clm_core.studies.runner import run_case
+
+    saved = os.environ.get("NUMBA_CACHE_DIR")
+    with tempfile.TemporaryDirectory(prefix="numba-cold-") as cache:
+        if cold:
+            os.environ["NUMBA_CACHE_DIR"] = cache  # the workers inherit it: nothing compiled yet, a new host
+        try:
+            rows: list[dict[str, Any]] = []
+            t0 = time.perf_counter()
+            with Engine(workers=workers, warm=warm_up if warm else None) as engine:
+                t1 = time.perf_counter()
+                tasks = [Task(f"first-{i}", run_case, ({"duration": duration, "seed": i + 1},)) for i in range(workers)]
+                engine.run(tasks, lambda _t, row, _why: rows.append(dict(row or {})))
+                t2 = time.perf_counter()
+                info = engine.info
+        finally:
+            if saved is None:
+                os.environ.pop("NUMBA_CACHE_DIR", None)
+            else:
+                os.environ["NUMBA_CACHE_DIR"] = saved
+    assert all(r.get("status") == "ok" for r in rows), rows
+    return {"warm": warm, "cold_cache": cold, "start_s": t1 - t0, "cases_s": t2 - t1,
+            "first_case_s": sorted(float(r["wall_time_s"]) for r in rows),
+            "first_case_cpu_s": sorted(float(r["cpu_time_s"]) for r in rows),
+            "workers_on": len({r["worker"] for r in rows}), "warm_up": info.warm}
+
+
+def run_first_case(a: argparse.Namespace) -> int:
+    """``--first-case``: the first case on fresh workers, without and with the warm-up plugin."""
+    print(f"study_scaling --first-case: {a.workers} fresh workers, one {a.duration:g}-s case each, "
+          f"{a.repeats} repeats; {load()}")
+    results = []
+    for rep in range(a.repeats):
+        for cold in (True, False):
+            for warm in (False, True):
+                l0 = load()
+                r = first_case(a.duration, a.workers, warm, cold)
+                r.update(repeat=rep, load=[l0, load()])
+                results.append(r)
+                warm_text = ("; warm-up per worker " + ", ".join(
+                    f"{w['warm_s']:.2f} s (waited {w['lock_wait_s']:.2f} s for the host lock)" for w in r["warm_up"])
+                    if warm else "")
+                print(f"  {'cold' if cold else 'warm'} numba cache, {'with' if warm else 'no'} warm-up: first case "
+                      f"{', '.join(f'{x:.2f}' for x in r['first_case_s'])} s wall "
+                      f"({', '.join(f'{x:.2f}' for x in r['first_case_cpu_s'])} s CPU) on {r['workers_on']} "
+                      f"worker(s); engine start {r['start_s']:.2f} s{warm_text}   [{r['load'][0]} -> {r['load'][1]}]")
+    if a.json:
+        Path(a.json).write_text(json.dumps({"first_case": results}, indent=2))
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", type=int, default=24, help="cases per study (default 24)")
@@ -119,7 +181,12 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=2.0, help="simulated time per case [s] (default 2)")
     ap.add_argument("--cli-runs", type=int, default=3, help="clm simulate runs per repeat (default 3)")
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    ap.add_argument("--first-case", action="store_true",
+                    help="measure the first case on fresh workers, without and with the compile-cache warm-up")
+    ap.add_argument("--workers", type=int, default=2, help="--first-case: local workers (default 2)")
     a = ap.parse_args()
+    if a.first_case:
+        return run_first_case(a)
 
     print(f"study_scaling: {a.cases} cases of {a.duration:g}-s Thalys runs, {a.repeats} repeats, "
           f"{os.cpu_count()} cores; {load()}")

@@ -121,6 +121,24 @@ class Layer:
         """Elastic compression-wave speed sqrt((lambda + 2 G) / rho) [m/s]."""
         return math.sqrt(self.M / self.rho)
 
+    @property
+    def cr(self) -> float:
+        """Elastic Rayleigh-wave speed of a half-space of this layer [m/s].
+
+        The root 0 < x < 1 of Rayleigh's equation in x = (c_R / c_s)^2,
+        x^3 - 8 x^2 + (24 - 16 q) x - 16 (1 - q) = 0 with q = (c_s / c_p)^2
+        (c_R = 0.9194 c_s at nu = 0.25, 0.9553 c_s at nu = 0.5), by bisection.
+        """
+        q = (self.cs / self.cp) ** 2
+        lo, hi = 0.0, 1.0  # f(0) = -16 (1 - q) < 0, f(1) = 1 > 0: one root between
+        for _ in range(60):
+            x = 0.5 * (lo + hi)
+            if x**3 - 8.0 * x**2 + (24.0 - 16.0 * q) * x - 16.0 * (1.0 - q) < 0.0:
+                lo = x
+            else:
+                hi = x
+        return self.cs * math.sqrt(0.5 * (lo + hi))
+
     def damping_factor(self, omega: float) -> complex:
         """Complex modulus factor 1 + i (w beta + 2 xi) [-] at circular frequency ``omega`` [rad/s]."""
         return complex(1.0, omega * self.beta + 2.0 * self.xi)

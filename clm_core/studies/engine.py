@@ -8,8 +8,9 @@
   interface, without a dashboard;
 - an existing scheduler with ``scheduler='tcp://host:port'``: ``dask
   scheduler`` and ``dask worker`` started by the user on any hosts that
-  have clm_core installed (and see the same files, for file-based presets
-  and bags).
+  have the same clm_core installed (the files of the cases travel with them,
+  :mod:`clm_core.studies.inputs`); a worker connected at the start whose
+  code revision differs from the client's is refused before anything runs.
 
 :meth:`Engine.run` submits the tasks, hands each finished one to a callback
 as soon as it completes (the caller stores it and moves the progress bar)
@@ -62,6 +63,36 @@ def _distributed() -> Any:
         raise InputError(f"studies need dask.distributed ({exc}); pip install 'dask[distributed]'") from None
 
 
+def _shipped_in(args: Sequence[Any]) -> list[Any]:
+    """The :class:`~clm_core.studies.inputs.Shipped` inputs among task arguments (direct, or values of a mapping)."""
+    from clm_core.studies.inputs import Shipped
+
+    out = []
+    for a in args:
+        if isinstance(a, Shipped):
+            out.append(a)
+        elif isinstance(a, Mapping):
+            out += [v for v in a.values() if isinstance(v, Shipped)]
+    return out
+
+
+def _swap_shipped(arg: Any, shared: Mapping[tuple[str, str, str], Any]) -> Any:
+    """``arg`` with each shared input replaced by its future (dask hands the task the data itself)."""
+    from clm_core.studies.inputs import Shipped
+
+    if isinstance(arg, Shipped):
+        return shared.get(_ident(arg), arg)
+    if isinstance(arg, Mapping) and any(isinstance(v, Shipped) for v in arg.values()):
+        return {k: shared.get(_ident(v), v) if isinstance(v, Shipped) else v for k, v in arg.items()}
+    return arg
+
+
+def _ident(item: Any) -> tuple[str, str, str]:
+    """What makes two shipped inputs the same object for a task: content, name and the client's path (the
+    outputs name it), not the content alone."""
+    return (str(item.sha256), str(item.name), str(item.source))
+
+
 def _process_cpu() -> float:
     """User + system CPU time of this process [s] (runs on a worker)."""
     import resource
@@ -91,11 +122,14 @@ class EngineInfo:
     workers: int = 0
     threads_per_worker: int = 1
     worker_names: list[str] = field(default_factory=list)
+    #: Per worker connected at the start: what its warm-up took (``warm_s``, ``lock_wait_s`` [s], ``error``).
+    warm: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return {"kind": self.kind, "scheduler": self.address, "workers": self.workers,
-                "threads_per_worker": self.threads_per_worker, "worker_processes": list(self.worker_names)}
+                "threads_per_worker": self.threads_per_worker, "worker_processes": list(self.worker_names),
+                "warm_up": list(self.warm)}
 
 
 class Engine:
@@ -109,8 +143,11 @@ class Engine:
         Local: worker processes (default: one per core). Remote: wait until
         this many workers are connected (default: at least one).
     warm : callable, optional
-        Run once on every worker before the tasks (imports, compiled code);
-        returns the worker's name.
+        Run once in every worker process before its first task, on the
+        workers connected now and on those that join later
+        (:class:`clm_core.studies.warm.WarmUp`, a worker plugin; one process
+        of a host at a time, so the others load the compiled code its first
+        process wrote to numba's cache).
     """
 
     def __init__(self, scheduler: str | None = None, workers: int | None = None,
@@ -146,8 +183,16 @@ class Engine:
                 self._client = dist.Client(self._cluster, timeout=f"{START_TIMEOUT_S}s")
                 self._client.wait_for_workers(n, timeout=START_TIMEOUT_S)
                 self.info = EngineInfo("local", str(self._cluster.scheduler_address), n)
+            self._check_code()
             if self.warm is not None:
-                names = self._client.run(self.warm)
+                from clm_core.studies.runner import worker_name
+                from clm_core.studies.warm import WarmUp, warm_info
+
+                # on every worker now and on every worker that joins later, before its first case
+                self._client.register_plugin(WarmUp(self.warm), name=WarmUp.name)
+                warm = self._client.run(warm_info)
+                self.info.warm = [warm[a] for a in sorted(warm)]
+                names = self._client.run(worker_name)
                 self.info.worker_names = sorted(str(v) for v in names.values())
         except BaseException:
             self.close()
@@ -171,6 +216,27 @@ class Engine:
         workers = self._client.scheduler_info().get("workers", {})
         threads = max((int(w.get("nthreads", 1)) for w in workers.values()), default=1)
         self.info = EngineInfo("remote", addr, len(workers), threads)
+
+    def _check_code(self) -> None:
+        """Refuse workers that run other clm_core code than this process (their cases would not be ours)."""
+        from clm_core.studies.inputs import code_revision
+
+        mine = code_revision()
+        theirs = self._client.run(code_revision)
+        other = sorted(f"{addr} (revision {rev[:12]})" for addr, rev in theirs.items() if rev != mine)
+        if other:
+            from clm_core import __version__
+
+            raise InputError(f"{len(other)} worker(s) run other clm_core code than this client (revision "
+                             f"{mine[:12]}, version {__version__}): {', '.join(other)}; install the same clm_core on "
+                             "every worker")
+
+    @property
+    def client(self) -> Any:
+        """The ``distributed.Client`` (inside the with-block)."""
+        if self._client is None:
+            raise ClmError("Engine.client outside its with-block")
+        return self._client
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
@@ -205,6 +271,20 @@ class Engine:
             return 0.0
         return float(sum(self._client.run(_process_cpu).values()))
 
+    def _share_inputs(self, tasks: Sequence[Task]) -> dict[tuple[str, str, str], Any]:
+        """Shipped files that more than one task reads, sent to the workers once (``scatter``, to every worker,
+        so one lost worker loses no input): ``{(sha256, name, source): future}``. The others travel inside
+        their one task."""
+        from clm_core.studies.inputs import Shipped
+
+        count: dict[tuple[str, str, str], int] = {}
+        first: dict[tuple[str, str, str], Shipped] = {}
+        for t in tasks:
+            for item in _shipped_in(t.args):
+                count[_ident(item)] = count.get(_ident(item), 0) + 1
+                first.setdefault(_ident(item), item)
+        return {k: self._client.scatter(first[k], broadcast=True, hash=False) for k, n in count.items() if n > 1}
+
     def run(self, tasks: Sequence[Task], done: Callable[[Task, Mapping[str, Any] | None, str], None]) -> None:
         """Run every task; call ``done(task, row, '')`` as each finishes, in completion order.
 
@@ -216,9 +296,11 @@ class Engine:
         if self._client is None:
             raise ClmError("Engine.run outside its with-block")
         nonce = uuid.uuid4().hex[:8]
+        shared = self._share_inputs(tasks)
         futures = {}
         for t in tasks:
-            fut = self._client.submit(t.func, *t.args, key=f"clm-{t.key}-{nonce}", pure=False)
+            args = tuple(_swap_shipped(a, shared) for a in t.args)
+            fut = self._client.submit(t.func, *args, key=f"clm-{t.key}-{nonce}", pure=False)
             futures[fut.key] = (fut, t)
         for fut in as_completed([f for f, _ in futures.values()]):
             task = futures[fut.key][1]

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from clm_core import settings
+from clm_core.studies.inputs import Shipped, check_code, materialise
 
 #: Result columns of a study row, from the run's summary (units in the names).
 SUMMARY_METRICS: tuple[str, ...] = (
@@ -39,11 +40,21 @@ SUMMARY_METRICS: tuple[str, ...] = (
 RUN_COLUMNS: tuple[str, ...] = ("wall_time_s", "cpu_time_s", "status", "error")
 
 
+def model_settings(case_settings: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, float]]:
+    """The model settings of a case (``track``, ``soil``, ``model``, ``params_file``, defaults filled in) and its
+    parameter overrides (``{name: value}`` of the ``<section>.<name>`` settings), as
+    :func:`clm_core.params.model_from_settings` takes them."""
+    model = {k: case_settings.get(k, settings.setting(k).default) for k in ("track", "soil", "model", "params_file")}
+    overrides = {k.split(".", 1)[1]: float(v) for k, v in case_settings.items() if k in settings.MODEL_PARAMETERS}
+    return model, overrides
+
+
 def simulate_case(case_settings: Mapping[str, Any], progress: bool = False) -> dict[str, Any]:
     """Run one case (checked settings, :func:`clm_core.studies.spec.check_settings`); return its summary.
 
     The summary is the ``summary.json`` of ``clm simulate --vehicle`` with the
-    same settings (:func:`clm_core.studies.spec.simulate_argv`).
+    same settings (:func:`clm_core.studies.spec.simulate_argv`). File settings
+    are paths of this process (:func:`run_case` puts the shipped files there).
 
     Raises
     ------
@@ -53,8 +64,7 @@ def simulate_case(case_settings: Mapping[str, Any], progress: bool = False) -> d
     from clm_core.params import model_from_settings
     from clm_core.vehicle.run import VehicleRunSpec, simulate_vehicle
 
-    model = {k: case_settings.get(k, settings.setting(k).default) for k in ("track", "soil", "model", "params_file")}
-    overrides = {k.split(".", 1)[1]: float(v) for k, v in case_settings.items() if k in settings.MODEL_PARAMETERS}
+    model, overrides = model_settings(case_settings)
     params = model_from_settings(model["track"], model["soil"], model["model"], model["params_file"], overrides)
     run_values = {k: v for k, v in case_settings.items() if k not in model and k not in settings.MODEL_PARAMETERS}
     if "train" in run_values:
@@ -68,8 +78,22 @@ def worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def run_case(case_settings: Mapping[str, Any]) -> dict[str, Any]:
+def run_case(case_settings: Mapping[str, Any], files: Mapping[str, Shipped] | None = None,
+             code: str | None = None) -> dict[str, Any]:
     """One study row: :data:`SUMMARY_METRICS` of :func:`simulate_case`, then :data:`RUN_COLUMNS` and ``worker``.
+
+    Parameters
+    ----------
+    case_settings : mapping
+        The case's checked settings.
+    files : mapping, optional
+        ``{setting: Shipped}``: the files the case reads, as the client read
+        them (:class:`clm_core.studies.inputs.CaseInput`); they are rebuilt in
+        this worker's temporary directory and the settings point there (the
+        client's paths are never opened). None: the settings' paths are read here.
+    code : str, optional
+        The client's code revision; a worker running other clm_core code
+        refuses the case (``status = 'error'``).
 
     Never raises for the case itself: any exception becomes ``status =
     'error'`` and ``error = '<ExceptionType>: <message>'`` with the metrics
@@ -78,7 +102,10 @@ def run_case(case_settings: Mapping[str, Any]) -> dict[str, Any]:
     row: dict[str, Any] = dict.fromkeys(SUMMARY_METRICS)
 
     def work() -> None:
-        summary = simulate_case(case_settings)
+        if code is not None:
+            check_code(code)
+        local = {**case_settings, **{k: str(materialise(f)) for k, f in (files or {}).items()}}
+        summary = simulate_case(local)
         row.update({m: summary[m] for m in SUMMARY_METRICS})
 
     return _timed(work, row)
@@ -103,6 +130,9 @@ def warm_up() -> str:
     Called once on every worker before the cases, so that no case's wall time
     includes loading the compiled code.
     """
+    from clm_core.studies.inputs import code_revision
+
+    code_revision()  # hashed now, at connect: the code this process imported
     simulate_case({"duration": 1e-3, "irregularity": "none"})
     return worker_name()
 
@@ -110,44 +140,84 @@ def warm_up() -> str:
 # ----------------------------------------------------------------------------- calibration of a bag
 
 
-def calibrate_bag(bag: str, method: str, options: Mapping[str, Any], out_dir: str | None, plots: bool = True,
-                  allow_partial: bool = False) -> dict[str, Any]:
-    """One row of ``clm calibrate FOLDER``: calibrate ``bag`` as ``clm calibrate BAG`` does, write its outputs.
+#: Key of a row that carries a case's output files back to the client (``{relative path: bytes}``); the client
+#: writes them under its own output directory and drops the key (:func:`clm_core.studies.study.execute`).
+OUTPUTS = "_outputs"
 
-    The outputs (:func:`clm_core.calibration.report.write_outputs`) go into
-    ``out_dir`` (replaced whole, written beside it first and renamed, so it
-    is never half-written); None: nothing is written.
+
+def calibrate_bag(bag: Shipped, method: str, options: Mapping[str, Any], files: Mapping[str, Shipped] | None = None,
+                  plots: bool = True, allow_partial: bool = False, code: str | None = None) -> dict[str, Any]:
+    """One row of ``clm calibrate FOLDER``: calibrate ``bag`` as ``clm calibrate BAG`` does; return its outputs.
+
+    Parameters
+    ----------
+    bag : Shipped
+        The bag (directory or file) as the client read it; rebuilt in a
+        temporary folder of this worker and removed afterwards.
+    method : str
+    options : mapping
+        :class:`clm_core.calibration.options.CalibrationOptions` as a mapping.
+    files : mapping, optional
+        ``{option: Shipped}``: the files the options name (channel map,
+        parameter file, track or soil file), rebuilt here; the options point there.
+    plots : bool
+        Include the PNG plots in the outputs.
+    allow_partial : bool
+        Fit what is left of a damaged bag.
+    code : str, optional
+        The client's code revision (a worker running other code refuses the bag).
 
     Returns
     -------
     dict
-        ``bag``, ``method``, ``model``, ``misfit``, ``rms_residual``, per
-        fitted parameter ``<name>``, ``<name>_ci95_low``, ``<name>_ci95_high``,
+        ``method``, ``model``, ``misfit``, ``rms_residual``, per fitted
+        parameter ``<name>``, ``<name>_ci95_low``, ``<name>_ci95_high``,
         ``warnings`` (joined with `` | ``), then :data:`RUN_COLUMNS` and
-        ``worker``. Never raises for the bag itself (``status = 'error'``).
+        ``worker``; and :data:`OUTPUTS`: the files of
+        :func:`clm_core.calibration.report.write_outputs` (``params.yaml``,
+        ``summary.json``, ``report.md``, plots) as ``{relative path: bytes}``,
+        written by the client. The outputs name the bag and channel map by
+        the client's paths. Never raises for the bag itself (``status = 'error'``).
     """
+    import dataclasses
     import shutil
-    import uuid
+    import tempfile
 
     from clm_core.calibration.api import calibrate
     from clm_core.calibration.options import CalibrationOptions
     from clm_core.calibration.report import write_outputs
 
-    row: dict[str, Any] = {"bag": Path(bag).name, "method": method, "model": None, "misfit": None,
-                           "rms_residual": None}
+    row: dict[str, Any] = {"method": method, "model": None, "misfit": None, "rms_residual": None}
 
     def work() -> None:
-        result = calibrate(bag, method, CalibrationOptions.from_mapping(options), allow_partial=allow_partial)
-        row.update(model=result.model, misfit=result.misfit, rms_residual=result.stats.rms)
-        for p in result.parameters:
-            row.update({p.name: p.value, f"{p.name}_ci95_low": p.ci_low, f"{p.name}_ci95_high": p.ci_high})
-        row["warnings"] = " | ".join(result.warnings)
-        if out_dir is not None:
-            final = Path(out_dir)
-            tmp = final.parent / f".{final.name}.partial-{uuid.uuid4().hex[:8]}"
-            write_outputs(result, tmp, plots=plots)
-            if final.exists():
-                shutil.rmtree(final)
-            tmp.rename(final)
+        if code is not None:
+            check_code(code)
+        with tempfile.TemporaryDirectory(prefix="clm-bag-") as tmp:
+            local_bag = materialise(bag, Path(tmp) / "in")
+            given = dict(files or {})
+            local = {k: str(materialise(f, Path(tmp) / "in")) for k, f in given.items()}
+            result = calibrate(local_bag, method, CalibrationOptions.from_mapping({**options, **local}),
+                               allow_partial=allow_partial)
+            # the outputs name the client's files, not this worker's copies
+            swap = {str(local_bag): bag.source, **{local[k]: f.source for k, f in given.items()}}
+            result = dataclasses.replace(
+                result, bag=bag.source, warnings=tuple(_swap(w, swap) for w in result.warnings),
+                channel_map=dataclasses.replace(result.channel_map, source=_swap(result.channel_map.source, swap)))
+            row.update(model=result.model, misfit=result.misfit, rms_residual=result.stats.rms)
+            for p in result.parameters:
+                row.update({p.name: p.value, f"{p.name}_ci95_low": p.ci_low, f"{p.name}_ci95_high": p.ci_high})
+            row["warnings"] = " | ".join(result.warnings)
+            out = Path(tmp) / "out"
+            write_outputs(result, out, plots=plots)
+            row[OUTPUTS] = {f.relative_to(out).as_posix(): f.read_bytes() for f in sorted(out.rglob("*"))
+                            if f.is_file()}
+            shutil.rmtree(out, ignore_errors=True)
 
     return _timed(work, row)
+
+
+def _swap(text: str, paths: Mapping[str, str]) -> str:
+    """``text`` with every worker path of ``paths`` replaced by the client's."""
+    for mine, theirs in paths.items():
+        text = text.replace(mine, theirs)
+    return text

@@ -31,19 +31,18 @@ alone, reported in its row.
 
 from __future__ import annotations
 
-import hashlib
 import itertools
-import json
 import math
 import re
 import zlib
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from clm_core import __version__, settings
+from clm_core import settings
 from clm_core.errors import ParameterError
+from clm_core.studies.inputs import CaseResolver, Shipped
 
 #: Settings of the model a case runs on (:func:`clm_core.params.model_from_settings`).
 MODEL_SETTINGS: tuple[str, ...] = ("track", "soil", "model", "params_file")
@@ -94,14 +93,23 @@ class Case:
         rest take the schema's defaults.
     key : str
         Identity of the run: a hash of every resolved setting (defaults
-        included) and the version of clm_core. Equal keys, equal results;
-        the result store of a study is keyed by it.
+        included), the content of every file it reads, its resolved model
+        parameter values and the clm_core code revision
+        (:mod:`clm_core.studies.inputs`). Equal keys, equal results; the
+        result store of a study is keyed by it.
+    files : dict
+        ``{setting: Shipped}``: the files the case reads, read by the client
+        (relative paths from its working directory), shipped to the workers.
+    code : str
+        The client's code revision (:func:`clm_core.studies.inputs.code_revision`).
     """
 
     index: int
     values: dict[str, Any]
     settings: dict[str, Any]
     key: str
+    files: dict[str, Shipped] = field(default_factory=dict)
+    code: str = ""
 
 
 @dataclass(frozen=True)
@@ -137,8 +145,19 @@ class StudySpec:
         """Names of the varied parameters, grid first, in file order (the table's parameter columns)."""
         return [*self.grid, *self.vary]
 
-    def cases(self) -> list[Case]:
-        """Every case: the grid's combinations (last name fastest) crossed with the sample's draws."""
+    def cases(self, base: str | Path | None = None) -> list[Case]:
+        """Every case: the grid's combinations (last name fastest) crossed with the sample's draws.
+
+        The files the cases name are read here (relative paths from ``base``,
+        default the working directory), once each, and their contents go into
+        the cases (:class:`clm_core.studies.inputs.CaseResolver`).
+
+        Raises
+        ------
+        ParameterError
+            A combination that breaks a rule, or a file a case names that cannot be read.
+        """
+        resolver = CaseResolver(base)
         draws = self._draws()
         out: list[Case] = []
         grid_points = itertools.product(*self.grid.values()) if self.grid else [()]
@@ -148,8 +167,9 @@ class StudySpec:
                 values = {**g, **d}
                 where = f"{self.source}: case {len(out)} ({_describe(values)}): "
                 case_settings = check_settings({**self.fixed, **values}, where)
-                out.append(Case(len(out), {k: case_settings[k] for k in values}, case_settings,
-                                case_key(case_settings)))
+                ci = resolver.resolve(case_settings, where)
+                out.append(Case(len(out), {k: case_settings[k] for k in values}, case_settings, ci.key, ci.files,
+                                ci.code))
         return out
 
     def _draws(self) -> list[dict[str, Any]]:
@@ -423,10 +443,11 @@ def resolved(case_settings: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def case_key(case_settings: Mapping[str, Any]) -> str:
-    """Identity of a case: 16 hex digits of a SHA-256 of its resolved settings and the clm_core version."""
-    text = json.dumps({"clm_core": __version__, "settings": resolved(case_settings)}, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+def case_key(case_settings: Mapping[str, Any], base: str | Path | None = None) -> str:
+    """Identity of a case: :data:`~clm_core.studies.inputs.KEY_DIGITS` hex digits of a SHA-256 of its resolved
+    settings, the contents of the files it reads, its model parameter values and the clm_core code revision
+    (:meth:`clm_core.studies.inputs.CaseResolver.resolve`)."""
+    return CaseResolver(base).resolve(case_settings).key
 
 
 def _text(v: Any) -> str:

@@ -6,8 +6,8 @@ calibrate FOLDER``) share one path (:func:`execute`):
 1. the output directory: created, or resumed when it holds a result store
    (``cases/``) of an earlier run, or refused when it holds anything else
    (unless ``overwrite``);
-2. the cases already in the store (same key: same settings, same
-   clm_core version) are reused, not recomputed; the others run on the
+2. the cases already in the store (same key: same settings, file contents,
+   parameter values and code revision, :mod:`clm_core.studies.inputs`) are reused, not recomputed; the others run on the
    engine (:class:`clm_core.studies.engine.Engine`), each stored atomically
    the moment it finishes (:class:`clm_core.studies.store.ResultStore`), with
    a progress bar on a terminal;
@@ -33,7 +33,8 @@ from clm_core import __version__
 from clm_core.errors import ClmError, InputError
 from clm_core.io.files import write_json
 from clm_core.studies.engine import Engine, EngineInfo, Task
-from clm_core.studies.runner import RUN_COLUMNS, SUMMARY_METRICS, calibrate_bag, run_case, warm_up
+from clm_core.studies.inputs import Shipped, code_revision, identity_key, ship
+from clm_core.studies.runner import OUTPUTS, RUN_COLUMNS, SUMMARY_METRICS, calibrate_bag, run_case, warm_up
 from clm_core.studies.spec import StudySpec, column_text, simulate_argv
 from clm_core.studies.store import ResultStore, columns_of, write_table
 
@@ -54,6 +55,9 @@ class Item:
     columns: dict[str, Any]
     #: Extra fields of the stored record: the settings, the command of the same run alone.
     record: dict[str, Any] = field(default_factory=dict)
+    #: Folder (relative to the output directory) where the client writes the files the task returns
+    #: (:data:`clm_core.studies.runner.OUTPUTS`); None: the task returns none.
+    outputs: str | None = None
 
 
 @dataclass
@@ -170,7 +174,11 @@ def execute(items: Sequence[Item], out: Path, *, scheduler: str | None = None, w
                 bar.update(1)
                 return
             row = {"status": "error", "error": f"the case killed its worker process ({reason})"}
-        rec = {"key": task.key, "index": it.index, "columns": it.columns, **it.record, "row": dict(row),
+        row = dict(row)
+        shipped = row.pop(OUTPUTS, None)
+        if it.outputs is not None and shipped is not None:
+            row["outputs"] = write_outputs(out, it.outputs, shipped)
+        rec = {"key": task.key, "index": it.index, "columns": it.columns, **it.record, "row": row,
                "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), "clm_core": __version__}
         store.put(rec)
         records[task.key] = rec
@@ -203,6 +211,37 @@ def execute(items: Sequence[Item], out: Path, *, scheduler: str | None = None, w
     return _finish(items, records, lost, out, lead, table, reused, t1 - t0, info, cpu)
 
 
+def write_outputs(out: Path, folder: str, files: Mapping[str, bytes]) -> list[str]:
+    """Write a task's returned files into ``out/folder`` (replaced whole: written beside it, then renamed).
+
+    Written by the client, so the outputs of every case are on the client's
+    disk whatever worker ran it. Returns the relative paths written.
+
+    Raises
+    ------
+    ClmError
+        A returned path that would leave ``out/folder`` (absolute, or with ``..``).
+    """
+    import shutil
+    import uuid
+
+    final = out / folder
+    tmp = final.parent / f".{final.name}.partial-{uuid.uuid4().hex[:8]}"
+    for rel in files:
+        parts = Path(rel).parts
+        if Path(rel).is_absolute() or ".." in parts or not parts:
+            raise ClmError(f"a worker returned the output path {rel!r}: must be relative, inside the case's folder")
+    for rel, data in files.items():
+        dest = tmp / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        dest.write_bytes(data)
+    tmp.mkdir(parents=True, exist_ok=True)
+    if final.exists():
+        shutil.rmtree(final)
+    tmp.rename(final)
+    return sorted(files)
+
+
 def _finish(items: Sequence[Item], records: Mapping[str, Mapping[str, Any]], lost: Mapping[str, str], out: Path,
             lead: Sequence[str], table: str, reused: int, elapsed: float, info: EngineInfo,
             cpu: dict[str, float]) -> Outcome:
@@ -216,6 +255,7 @@ def _finish(items: Sequence[Item], records: Mapping[str, Mapping[str, Any]], los
         else:
             body = {"status": "pending", "error": "not run yet (interrupted)"}
         body.pop("worker", None)
+        body.pop("outputs", None)
         rows.append({"case": it.index, **it.columns, **body, "case_key": it.task.key})
     columns = columns_of(rows, ["case", *lead], [*RUN_COLUMNS, "case_key"])
     files = write_table(rows, columns, out, table)
@@ -231,7 +271,8 @@ def study_items(spec: StudySpec) -> list[Item]:
     for c in spec.cases():
         argv = simulate_argv(c.settings)
         items.append(Item(
-            c.index, Task(c.key, run_case, (c.settings,)), {k: column_text(v) for k, v in c.values.items()},
+            c.index, Task(c.key, run_case, (c.settings, c.files, c.code)),
+            {k: column_text(v) for k, v in c.values.items()},
             {"settings": c.settings, "command": "clm " + shlex.join(argv) + " --out OUT"},
         ))
     return items
@@ -275,7 +316,7 @@ def run_study(spec: StudySpec, out: str | Path, *, scheduler: str | None = None,
     if figures:
         from clm_core.io.plots import plot_study
 
-        outcome.files += plot_study(outcome.rows, spec.varied, d, title=spec.name)
+        outcome.files += plot_study(outcome.rows, spec.varied, d, title=spec.name, fixed=spec.fixed)
     write_json(d / "study.json", {
         "name": spec.name, "description": spec.description, "source": spec.source, "kind": "vehicle",
         "fixed_settings": spec.fixed, "varied": spec.varied, "cases": len(items),
@@ -327,36 +368,70 @@ def is_bag_folder(path: str | Path) -> bool:
     return p.is_dir() and not is_bag(p) and any(is_bag(c) for c in p.iterdir() if not c.name.startswith("."))
 
 
+#: Calibration options that may name a file: always (``channels``, ``params``) or by the preset loader's rule.
+CALIBRATION_FILE_OPTIONS: tuple[str, ...] = ("channels", "params", "track", "base_soil")
+
+
+def calibration_files(options: Mapping[str, Any]) -> dict[str, Shipped]:
+    """The files the calibration options name, read here (relative paths from the working directory).
+
+    Raises
+    ------
+    ParameterError
+        A named file that does not exist or cannot be read.
+    """
+    out = {}
+    for k in CALIBRATION_FILE_OPTIONS:
+        v = options.get(k)
+        if v is None or str(v).strip() == "":
+            continue
+        if k in ("channels", "params") or Path(str(v)).suffix in (".yaml", ".yml") or Path(str(v)).exists():
+            out[k] = ship(str(v), k)
+    return out
+
+
 def calibrate_folder(folder: str | Path, method: str, options: Mapping[str, Any], out: str | Path, *,
                      scheduler: str | None = None, workers: int | None = None, overwrite: bool = False,
                      retry_failed: bool = False, plots: bool = True, allow_partial: bool = False,
                      log: Callable[[str], None] | None = None) -> Outcome:
     """Calibrate every bag of ``folder`` on the engine (``clm calibrate FOLDER``): one row per bag.
 
-    Each bag's outputs (those of ``clm calibrate BAG``) go to ``out/bags/<bag>/``;
-    the table to ``out/calibrations.parquet`` and ``.csv``. Resumable like a
-    study (the store key is the bag's path, the method and the options).
+    Each bag is read here (relative paths from the working directory) and
+    shipped to a worker with the files its options name; the worker returns
+    the bag's outputs (those of ``clm calibrate BAG``) and this process
+    writes them to ``out/bags/<bag>/``, then the table to
+    ``out/calibrations.parquet`` and ``.csv``. Resumable like a study: the
+    store key is a hash of the bag's content, the method, the options (the
+    content of the files they name), ``plots``, ``allow_partial`` and the
+    code revision.
     """
-    import hashlib
-    import json
-
     bags = find_bags(folder)
     d, _ = prepare_dir(out, overwrite)
     (d / "bags").mkdir(exist_ok=True)
+    code = code_revision()
+    files = calibration_files(options)
     items = []
     names: dict[str, int] = {}
     for i, bag in enumerate(bags):
         stem = bag.stem if bag.is_file() else bag.name
         names[stem] = names.get(stem, 0) + 1
         name = stem if names[stem] == 1 else f"{stem}-{names[stem]}"
-        ident = json.dumps({"bag": str(bag.resolve()), "method": method, "options": dict(options),
-                            "allow_partial": allow_partial, "clm_core": __version__}, sort_keys=True, default=str)
-        key = hashlib.sha256(ident.encode()).hexdigest()[:16]
-        target = d / "bags" / name
-        argv = ["calibrate", str(bag), "--method", method, "--out", str(target)]
-        items.append(Item(i, Task(key, calibrate_bag, (str(bag), method, dict(options), str(target), plots,
-                                                       allow_partial)),
-                          {"bag": name}, {"bag_path": str(bag), "command": "clm " + shlex.join(argv)}))
+        shipped = ship(bag, "bag")
+        mine = dict(files)
+        if "channels" not in mine and bag.is_file():  # a bag file's channel map sits beside it (a directory's: inside)
+            from clm_core.calibration.channels import find_channel_map
+
+            cmap = find_channel_map(bag)
+            if cmap is not None:
+                mine["channels"] = ship(cmap, "channel map")
+        ident = {"bag": {"name": name, **shipped.identity()}, "method": method, "allow_partial": allow_partial,
+                 "plots": plots, "code": code,
+                 "options": {**dict(options), **{k: f.identity() for k, f in mine.items()}}}
+        argv = ["calibrate", str(bag), "--method", method, "--out", str(d / "bags" / name)]
+        items.append(Item(i, Task(identity_key(ident), calibrate_bag, (shipped, method, dict(options), mine, plots,
+                                                                      allow_partial, code)),
+                          {"bag": name}, {"bag_path": shipped.source, "bag_sha256": shipped.sha256,
+                                          "command": "clm " + shlex.join(argv)}, outputs=f"bags/{name}"))
     outcome = execute(items, d, scheduler=scheduler, workers=workers, retry_failed=retry_failed,
                       desc="clm calibrate", lead=["bag", "method", "model", "misfit", "rms_residual"],
                       table="calibrations", log=log)

@@ -12,7 +12,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -148,31 +147,11 @@ def test_resumes_after_the_process_is_killed(tmp_path: Path) -> None:
 
 @pytest.fixture
 def remote_scheduler(tmp_path: Path) -> Iterator[str]:
-    """``dask scheduler`` and ``dask worker`` (2 processes, 1 thread each) on loopback; their address."""
-    dask = str(Path(sys.executable).with_name("dask"))
-    sched_file = tmp_path / "scheduler.json"
-    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-                               "--scheduler-file", str(sched_file)], env=ENV,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
-    try:
-        deadline = time.monotonic() + 120
-        while not sched_file.is_file() or not sched_file.read_text().strip():
-            assert procs[0].poll() is None and time.monotonic() < deadline, "dask scheduler did not start"
-            time.sleep(0.1)
-        address = json.loads(sched_file.read_text())["address"]
-        procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", "2", "--nthreads", "1",
-                                       "--host", "127.0.0.1", "--no-dashboard"], env=ENV,
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    """``dask scheduler`` and ``dask worker`` (2 processes, 1 thread each) on loopback, connected; their address."""
+    from tests.studies.cluster import dask_processes
+
+    with dask_processes(tmp_path / "dask", workers=2) as address:
         yield address
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
 
 
 def test_remote_scheduler(remote_scheduler: str, tmp_path: Path,
