@@ -17,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import signal
 
 from clm_core.arrays import Array
 from clm_core.errors import InputError
@@ -67,18 +66,6 @@ def zone_forces(model: FreeFieldModel, first_sleeper: ArrayLike, soil_force: Arr
     return out
 
 
-def _block_sums(a: Array, M: int) -> Array:
-    """b[:, m] = sum of a[:, (m-1)M+1 .. mM] (b[:, 0] = a[:, 0]), summed in input order as the stream does."""
-    n = a.shape[1]
-    n_out = (n - 1) // M + 1
-    b = np.zeros((a.shape[0], n_out))
-    b[:, 0] = 0.0 + a[:, 0]
-    for i in range(1, M + 1):
-        idx = np.arange(1, n_out) * M - M + i
-        b[:, 1:] = b[:, 1:] + a[:, idx]
-    return b
-
-
 def receiver_velocity(model: FreeFieldModel, t: ArrayLike, first_sleeper: ArrayLike,
                       soil_force: ArrayLike) -> VelocityRecord:
     """Offline receiver velocities of a whole record (FFT convolution).
@@ -106,9 +93,12 @@ def receiver_velocity(model: FreeFieldModel, t: ArrayLike, first_sleeper: ArrayL
                          f"dt = {model.dt:g} s")
     F = zone_forces(model, first_sleeper, soil_force)
     e = np.diff(F, axis=1, prepend=F[:, :1])
-    a = signal.sosfilt(model.sos, e, axis=-1)
-    b = _block_sums(a, model.decimation)
-    n_out = b.shape[1]
+    M = model.decimation
+    c = model.decimation_taps
+    n_out = (tt.size - 1) // M + 1
+    nf = int(2 ** math.ceil(math.log2(tt.size + c.size)))
+    full = np.fft.irfft(np.fft.rfft(e, n=nf, axis=1) * np.fft.rfft(c, n=nf)[None, :], n=nf, axis=1)
+    b = full[:, : (n_out - 1) * M + 1: M]
     L = model.n_fir
     nfft = int(2 ** math.ceil(math.log2(n_out + L)))
     Bf = np.fft.rfft(b, n=nfft, axis=1)
@@ -125,9 +115,13 @@ class ReceiverStream:
     """Streaming receiver velocities: one frame of sleeper forces in, a velocity sample out every M frames.
 
     Gives the numbers of :func:`receiver_velocity` on the same forces (to
-    rounding): the same increments, the same ``sosfilt`` recursion (its state
-    carried from frame to frame), the same block sums, and the FIR sum taken
-    directly over a ring buffer of the last L model steps.
+    rounding): the same increments, the same decimation FIR c (band limit and
+    block sum) and the same step-response FIR g, both summed directly over
+    ring buffers (increments of the last len(c) frames, decimated increments
+    of the last L model steps) instead of by FFT. Only the contiguous range
+    of zone sleepers whose buffers hold a non-zero value enters the sums
+    (the others contribute exact zeros), so the cost follows the sleepers
+    near the loads, not the zone.
 
     Parameters
     ----------
@@ -139,11 +133,15 @@ class ReceiverStream:
         self.model = model
         J, R, L = model.step_response.shape
         self._G = np.ascontiguousarray(model.step_response[:, :, ::-1].transpose(1, 0, 2)).reshape(R, J * L)
-        self._buf = np.zeros((J, 2 * L))
-        self._pos = 0
-        self._zi = np.zeros((model.sos.shape[0], J, 2))
+        self._c = np.ascontiguousarray(model.decimation_taps[::-1])
+        K = self._c.size
+        self._E = np.zeros((J, 2 * K))  # increments, per sleeper a doubled time ring
+        self._B = np.zeros((J, 2 * L))  # decimated increments
+        self._pe = 0
+        self._pb = 0
+        self._last_e = np.full(J, -(1 << 40), dtype=np.int64)  # frame of the last non-zero increment
+        self._last_b = np.full(J, -(1 << 40), dtype=np.int64)  # model step of the last non-zero b
         self._prev = np.zeros(J)
-        self._acc = np.zeros(J)
         self._n = -1
         self._t0 = math.nan
 
@@ -190,21 +188,35 @@ class ReceiverStream:
         pos, cols = m.zone_columns(idx)
         Fz[cols] = F[pos]
         if n == 0:
-            self._prev = Fz.copy()
+            self._prev = Fz
         e = Fz - self._prev
         self._prev = Fz
-        a, self._zi = signal.sosfilt(m.sos, e[:, None], axis=-1, zi=self._zi)
-        self._acc = self._acc + a[:, 0]
+        self._last_e[e != 0.0] = n
+        K = self._c.size
+        p = self._pe
+        self._E[:, p] = e
+        self._E[:, p + K] = e
+        self._pe = (p + 1) % K
         self._n = n
         if n % m.decimation:
             return None
-        b = self._acc
-        self._acc = np.zeros(m.n_zone)
+        mstep = n // m.decimation
+        live = np.nonzero(self._last_e > n - K)[0]
+        b = np.zeros(m.n_zone)
+        if live.size:
+            lo, hi = int(live[0]), int(live[-1]) + 1
+            b[lo:hi] = self._E[lo:hi, p + 1: p + 1 + K] @ self._c
         L = m.n_fir
-        p = self._pos
-        self._buf[:, p] = b
-        self._buf[:, p + L] = b
-        self._pos = (p + 1) % L
-        window = self._buf[:, p + 1: p + 1 + L]  # oldest .. newest
-        v = self._G @ np.ascontiguousarray(window).reshape(-1)
-        return self._t0 + (n // m.decimation) * m.model_dt, v
+        q = self._pb
+        self._B[:, q] = b
+        self._B[:, q + L] = b
+        self._pb = (q + 1) % L
+        self._last_b[b != 0.0] = mstep
+        live = np.nonzero(self._last_b > mstep - L)[0]
+        if live.size:
+            lo, hi = int(live[0]), int(live[-1]) + 1
+            window = np.ascontiguousarray(self._B[lo:hi, q + 1: q + 1 + L]).reshape(-1)  # oldest .. newest
+            v = self._G[:, lo * L: hi * L] @ window
+        else:
+            v = np.zeros(m.receivers.shape[0])
+        return self._t0 + mstep * m.model_dt, v

@@ -39,8 +39,12 @@ model step is Delta = M dt (f_s = 1 / Delta, about ``model_rate`` = 250 Hz):
    ``band`` = 100 Hz, -0.1 dB at 80 Hz) on e_j at the input rate (this is
    the anti-alias filter of the decimation; it is part of the model and
    delays the response by its group delay, about 8 ms at low frequency);
+   its impulse response is cut where it falls below 1e-16 of its peak
+   (a FIR of about 300 taps at 1 kHz);
 3. decimation by block sums b_j[m] = sum over the M inputs (m-1)M+1 .. mM
-   (the increment of the filtered force over one model step);
+   (the increment of the filtered force over one model step); steps 2 and
+   3 are one FIR c = (cut Butterworth response) * (M ones) evaluated at
+   every M-th input (:func:`decimation_filter`);
 4. v_r[m] = sum_j sum_{k=0}^{L-1} g_jr[k] b_j[m-k] with g_jr the step
    response of the velocity FIR: g[k] = sum_{i<=k} h[i], h = irfft of
    H_jr(f_k) T(f_k) on f_k = k f_s / N (N >= 2 L), T a cosine taper from
@@ -64,14 +68,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import signal, sparse
 
-from clm_core.arrays import Array, IntArray
+from clm_core.arrays import Array, CArray, IntArray
 from clm_core.checks import positive
 from clm_core.errors import InputError, ParameterError
 from clm_core.halfspace.bem import rect_inverse_distance
 from clm_core.halfspace.green import KernelEngine, lagrange_weights
 from clm_core.profile import SoilProfile
 
-__all__ = ["FreeFieldModel", "band_filter", "receivers_from_distances"]
+__all__ = ["AreaTransfer", "FreeFieldModel", "band_filter", "receivers_from_distances"]
 
 #: Order of the Butterworth band limit (anti-alias filter) on the force increments.
 BAND_ORDER = 8
@@ -93,6 +97,91 @@ def receivers_from_distances(distances: ArrayLike, x: float = 0.0) -> Array:
 def band_filter(band: float, dt: float) -> Array:
     """Second-order sections of the causal Butterworth band limit (order 8, cut-off ``band`` [Hz], step ``dt`` [s])."""
     return np.asarray(signal.butter(BAND_ORDER, band, btype="low", output="sos", fs=1.0 / dt), dtype=np.float64)
+
+
+def decimation_filter(sos: Array, decimation: int) -> Array:
+    """FIR taps c of the band limit followed by the block sum of ``decimation`` inputs: b[m] = sum_i c[i] e[mM - i].
+
+    c = (Butterworth impulse response, cut where its tail is below 1e-16 of its peak) * (M ones).
+    """
+    n = 256
+    while True:
+        x = np.zeros(n)
+        x[0] = 1.0
+        h = signal.sosfilt(sos, x)
+        peak = float(np.max(np.abs(h)))
+        big = np.nonzero(np.abs(h) > 1e-16 * peak)[0]
+        if big[-1] < n - n // 4 or n > 1 << 20:
+            break
+        n *= 2
+    h = h[: big[-1] + 1]
+    return np.asarray(np.convolve(h, np.ones(decimation)), dtype=np.float64)
+
+
+class AreaTransfer:
+    """Surface vertical displacement at receivers per unit force spread uniformly over a contact area [m/N].
+
+    U(w) = (1/A) int_area u_z(rho, w) dA for area-receiver pairs: the
+    Boussinesq part c0 / rho in closed form (any receiver position, on the
+    area included), the smooth remainder by Gauss–Legendre points (at least
+    ``POINTS_PER_WAVELENGTH`` per Rayleigh wavelength at ``f_top``) and
+    4-point interpolation on the radial grid of :class:`KernelEngine`.
+
+    Parameters
+    ----------
+    profile : SoilProfile
+    dx, y : array_like, shape (P,)
+        Area centre minus receiver along the track, and receiver distance
+        from the area's centre line (the track axis) [m].
+    f_top : float
+        Highest frequency [Hz].
+    contact_length, contact_width : float
+        Area across and along the track [m] (both 0: point loads).
+    """
+
+    def __init__(self, profile: SoilProfile, dx: ArrayLike, y: ArrayLike, f_top: float,
+                 contact_length: float, contact_width: float) -> None:
+        dxa = np.atleast_1d(np.asarray(dx, dtype=float))
+        ya = np.atleast_1d(np.asarray(y, dtype=float))
+        n_p = dxa.size
+        lam = 0.87 * profile.min_cs / f_top
+        pts = []
+        for size in (contact_width, contact_length):
+            n = max(1, int(math.ceil(POINTS_PER_WAVELENGTH * size / lam))) if size > 0 else 1
+            x, w = np.polynomial.legendre.leggauss(n)
+            pts.append((0.5 * size * x, 0.5 * w if size > 0 else np.ones(1)))
+        (gx, wx), (gy, wy) = pts
+        gw = np.outer(wx, wy).ravel()  # weights of the mean over the area (sum 1)
+        gxx, gyy = np.repeat(gx, gy.size), np.tile(gy, gx.size)
+        dist = np.hypot(dxa[:, None] + gxx[None, :], gyy[None, :] - ya[:, None])
+        self.r_far = float(np.max(np.hypot(np.abs(dxa) + 0.5 * contact_width, np.abs(ya) + 0.5 * contact_length)))
+        dr = min(lam / DR_PER_WAVELENGTH, max(self.r_far, 1.0) / 200.0)
+        h1 = profile.first_interface_depth
+        if h1 is not None:
+            dr = min(dr, h1 / 8.0)
+        self.engine = KernelEngine(profile, max(self.r_far, 8.0 * dr), dr, f_top)
+        W = lagrange_weights(self.engine.r, dist.ravel())
+        rows = np.repeat(np.arange(n_p), gw.size)
+        S = sparse.csr_matrix((np.tile(gw, n_p), (rows, np.arange(rows.size))), shape=(n_p, rows.size))
+        self._W = (S @ W).tocsr()
+        if contact_length > 0 and contact_width > 0:
+            self._static = rect_inverse_distance(
+                np.zeros(n_p), ya, dxa - 0.5 * contact_width, dxa + 0.5 * contact_width,
+                np.full(n_p, -0.5 * contact_length), np.full(n_p, 0.5 * contact_length),
+            ) / (contact_length * contact_width)
+        elif contact_length == 0 and contact_width == 0:
+            r0 = np.hypot(dxa, ya)
+            if np.any(r0 <= 0):
+                raise InputError("receivers: a receiver coincides with a point load (point loads need r > 0)")
+            self._static = 1.0 / r0
+        else:
+            raise ParameterError(f"contact_length = {contact_length}, contact_width = {contact_width}: give both > 0 "
+                                 "(areas) or both 0 (point loads)")
+
+    def __call__(self, omega: float) -> CArray:
+        """U at circular frequency ``omega`` [rad/s], shape (P,) [m/N]."""
+        ker = self.engine(omega)
+        return np.asarray(ker.c0 * self._static + self._W @ ker.gs, dtype=np.complex128)
 
 
 @dataclass(frozen=True)
@@ -179,6 +268,7 @@ class FreeFieldModel:
                 f"{self.decimation} per model step); lower the band or give forces at a shorter step"
             )
         self.sos = band_filter(self.band, self.dt)
+        self.decimation_taps = decimation_filter(self.sos, self.decimation)
         self._geom = self._zone()
         self.first_sleeper = self._geom.j0
         self.step_response, self.leakage, self.n_fir = self._design()
@@ -203,18 +293,6 @@ class FreeFieldModel:
         """Centres x_j of the zone sleepers [m]."""
         return np.asarray((self.first_sleeper + np.arange(self.n_zone)) * self.spacing, dtype=np.float64)
 
-    def _gauss(self, f_top: float) -> tuple[Array, Array, Array]:
-        lam = 0.87 * self.profile.min_cs / f_top
-        out = []
-        for size in (self.contact_width, self.contact_length):
-            n = max(1, int(math.ceil(POINTS_PER_WAVELENGTH * size / lam))) if size > 0 else 1
-            x, w = np.polynomial.legendre.leggauss(n)
-            out.append((0.5 * size * x, 0.5 * size * w if size > 0 else np.ones(1)))
-        (gx, wx), (gy, wy) = out
-        area = self.contact_width * self.contact_length
-        w = np.outer(wx, wy).ravel() / (area if area > 0 else 1.0)
-        return np.repeat(gx, gy.size), np.tile(gy, gx.size), w
-
     # ------------------------------------------------------------------ FIR design
     def _design(self) -> tuple[Array, float, int]:
         g = self._geom
@@ -223,49 +301,21 @@ class FreeFieldModel:
         pj, pr = np.nonzero(g.mask)
         dx = self.sleeper_positions[pj] - self.receivers[pr, 0]
         yr = self.receivers[pr, 1]
-        gx, gy, gw = self._gauss(f_top)
-        px = dx[:, None] + gx[None, :]
-        py = gy[None, :] - yr[:, None]
-        dist = np.hypot(px, py)
-        far = float(np.max(np.hypot(np.abs(dx) + 0.5 * self.contact_width, np.abs(yr) + 0.5 * self.contact_length)))
-        memory = far / (0.87 * self.profile.min_cs) + self.tail
+        kern = AreaTransfer(self.profile, dx, yr, f_top, self.contact_length, self.contact_width)
+        memory = kern.r_far / (0.87 * self.profile.min_cs) + self.tail
         L = int(math.ceil(memory * fs)) + 1
-        N = 2 * L + (2 * L) % 2
+        N = 2 * L
         freqs = np.arange(N // 2 + 1) * fs / N
-        lam_min = 0.87 * self.profile.min_cs / f_top
-        dr = min(lam_min / DR_PER_WAVELENGTH, max(far, 1.0) / 200.0)
-        h1 = self.profile.first_interface_depth
-        if h1 is not None:
-            dr = min(dr, h1 / 8.0)
-        engine = KernelEngine(self.profile, max(far, dr * 8), dr, f_top)
-        W = lagrange_weights(engine.r, dist.ravel())
-        n_p = dx.size
-        rows = np.repeat(np.arange(n_p), gw.size)
-        S = sparse.csr_matrix((np.tile(gw, n_p), (rows, np.arange(rows.size))), shape=(n_p, rows.size))
-        Wp = (S @ W).tocsr()
-        if self.contact_length > 0 and self.contact_width > 0:
-            static = rect_inverse_distance(
-                np.zeros(n_p), np.asarray(yr, dtype=float), dx - 0.5 * self.contact_width,
-                dx + 0.5 * self.contact_width, np.full(n_p, -0.5 * self.contact_length),
-                np.full(n_p, 0.5 * self.contact_length),
-            ) / (self.contact_length * self.contact_width)
-        else:
-            r0 = np.hypot(dx, yr)
-            if np.any(r0 <= 0):
-                raise InputError("receivers: a receiver coincides with a point load (point sources need r > 0)")
-            static = 1.0 / r0
         taper = np.where(
             freqs <= self.band, 1.0,
             np.where(freqs < f_top, 0.5 * (1.0 + np.cos(math.pi * (freqs - self.band) / (f_top - self.band))), 0.0),
         )
-        Hv = np.zeros((n_p, freqs.size), dtype=np.complex128)
+        Hv = np.zeros((dx.size, freqs.size), dtype=np.complex128)
         for k, f in enumerate(freqs):
             if taper[k] == 0.0 or f == 0.0:
-                continue  # velocity transfer vanishes at f = 0
+                continue  # the velocity transfer vanishes at f = 0
             w = 2.0 * math.pi * f
-            ker = engine(w)
-            U = ker.c0 * static + Wp @ ker.gs
-            Hv[:, k] = 1j * w * U * taper[k]
+            Hv[:, k] = 1j * w * kern(w) * taper[k]
         h = np.fft.irfft(Hv, n=N, axis=1)
         peak = float(np.max(np.abs(h))) or 1.0
         leakage = float(np.max(np.abs(h[:, L:]))) / peak
