@@ -319,6 +319,11 @@ class FreeFieldModel:
         h = np.fft.irfft(Hv, n=N, axis=1)
         peak = float(np.max(np.abs(h))) or 1.0
         leakage = float(np.max(np.abs(h[:, L:]))) / peak
+        # fold the dropped taps: those at negative time (the band limit's precursor, indices >= 3L/2 of the period)
+        # into the first tap, those beyond the memory into the last one, so that sum(h[:L]) = H(0) = 0 and the
+        # step response g ends at zero: a constant force gives no velocity (else the dropped area leaves a drift)
+        h[:, 0] += h[:, (3 * L) // 2:].sum(axis=1)
+        h[:, L - 1] += h[:, L: (3 * L) // 2].sum(axis=1)
         gsteps = np.cumsum(h[:, :L], axis=1)
         out = np.zeros((g.n_zone, self.receivers.shape[0], L))
         out[pj, pr, :] = gsteps
