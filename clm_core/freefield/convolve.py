@@ -107,8 +107,9 @@ def receiver_velocity(model: FreeFieldModel, t: ArrayLike, first_sleeper: ArrayL
     for r in range(R):
         Gf = np.fft.rfft(model.step_response[:, r, :], n=nfft, axis=1)
         v[r] = np.fft.irfft(np.sum(Gf * Bf, axis=0), n=nfft)[:n_out]
-    t_out = tt[0] + np.arange(n_out) * model.model_dt
-    return VelocityRecord(t=t_out, velocity=v)
+    D = model.delay
+    t_out = tt[0] + np.arange(n_out - D) * model.model_dt
+    return VelocityRecord(t=t_out, velocity=np.ascontiguousarray(v[:, D:]))
 
 
 class ReceiverStream:
@@ -152,6 +153,8 @@ class ReceiverStream:
 
     def push(self, t: float, sleeper_index: ArrayLike, soil_force: ArrayLike) -> tuple[float, Array] | None:
         """Consume one frame; return (t_out [s], velocities (R,) [m/s]) when a model step completes, else None.
+
+        ``t_out`` = t - D Delta (the filters' delay, ``model.delay`` model steps).
 
         Parameters
         ----------
@@ -219,4 +222,6 @@ class ReceiverStream:
             v = self._G[:, lo * L: hi * L] @ window
         else:
             v = np.zeros(m.receivers.shape[0])
-        return self._t0 + mstep * m.model_dt, v
+        if mstep < m.delay:
+            return None  # the velocity of an instant before the first frame
+        return self._t0 + (mstep - m.delay) * m.model_dt, v

@@ -49,14 +49,27 @@ model step is Delta = M dt (f_s = 1 / Delta, about ``model_rate`` = 250 Hz):
    response of the velocity FIR: g[k] = sum_{i<=k} h[i], h = irfft of
    H_jr(f_k) T(f_k) on f_k = k f_s / N (N >= 2 L), T a cosine taper from
    ``band`` to 1.25 ``band`` (zero above, so H is never needed beyond the
-   Nyquist frequency), truncated to the first L taps (``memory`` = the
-   longest travel time r_max / (0.87 c_s,min) + ``tail``). Taps at negative
-   time (the non-causal leakage of the band limit) are dropped; their size
-   relative to the peak tap is reported as :attr:`FreeFieldModel.leakage`.
+   Nyquist frequency), delayed by D = ceil(3 f_s / ``band``) model steps
+   (the zero-phase taper's precursor, about 3 periods of the band limit,
+   then lies at positive lags instead of being cut off) and truncated to
+   its first L taps (``memory`` = the longest travel time
+   r_max / (0.87 c_s,min) + ``tail``, plus D). The few taps left beyond
+   (the remaining precursor, indices >= 3L/2 of the FFT period) are folded
+   into the first tap and those beyond the memory into the last one, so
+   that g ends at exactly zero (a constant force gives no velocity); the
+   largest of them relative to the peak tap is
+   :attr:`FreeFieldModel.leakage`.
 
-Outputs are at t_0 + m Delta (every M-th input). Sleepers farther than
+Outputs: v_r[m] is the velocity at t_0 + (m - D) Delta; the offline record
+starts at t_0 (the first D outputs precede the first input and are dropped)
+and ends D steps before the last input; the stream returns the velocity of
+t - D Delta with the frame of time t (a latency of D Delta, 32 ms at the
+default 100 Hz band and 250 Hz model rate). Sleepers farther than
 ``influence_length`` along the track from a receiver are left out for that
-receiver (their static field is the truncation; docs/freefield.md).
+receiver, and those in its last 30 % are faded out by a cosine weight, so
+that loads enter and leave the zone gradually (an abrupt edge sends a
+spurious Rayleigh pulse to the receiver as the train enters the zone);
+docs/freefield.md gives the truncation error.
 """
 
 from __future__ import annotations
@@ -83,7 +96,11 @@ BAND_ORDER = 8
 POINTS_PER_WAVELENGTH = 3.0
 #: Radial grid points of the Green's function per Rayleigh wavelength at the top frequency (4-point Lagrange
 #: interpolation: relative error ~ 1e-3).
-DR_PER_WAVELENGTH = 10.0
+DR_PER_WAVELENGTH = 16.0
+#: Part of the influence length over which the sources are faded out (cosine) towards its end.
+EDGE_FRACTION = 0.3
+#: Delay of the FIR filters in periods of the band limit (keeps the band limit's precursor causal).
+PRECURSOR_CYCLES = 3.0
 
 
 def receivers_from_distances(distances: ArrayLike, x: float = 0.0) -> Array:
@@ -303,7 +320,8 @@ class FreeFieldModel:
         yr = self.receivers[pr, 1]
         kern = AreaTransfer(self.profile, dx, yr, f_top, self.contact_length, self.contact_width)
         memory = kern.r_far / (0.87 * self.profile.min_cs) + self.tail
-        L = int(math.ceil(memory * fs)) + 1
+        self.delay = int(math.ceil(PRECURSOR_CYCLES / self.band * fs))
+        L = int(math.ceil(memory * fs)) + 1 + self.delay
         N = 2 * L
         freqs = np.arange(N // 2 + 1) * fs / N
         taper = np.where(
@@ -315,7 +333,11 @@ class FreeFieldModel:
             if taper[k] == 0.0 or f == 0.0:
                 continue  # the velocity transfer vanishes at f = 0
             w = 2.0 * math.pi * f
-            Hv[:, k] = 1j * w * kern(w) * taper[k]
+            Hv[:, k] = 1j * w * kern(w) * taper[k] * np.exp(-1j * w * self.delay * self.model_dt)
+        # smooth edge of the zone of influence: a load entering it rises over the last EDGE_FRACTION of the
+        # influence length instead of appearing at once (a sudden load would send a spurious Rayleigh pulse)
+        u = np.clip((np.abs(dx) / self.influence_length - (1.0 - EDGE_FRACTION)) / EDGE_FRACTION, 0.0, 1.0)
+        Hv *= (0.5 * (1.0 + np.cos(math.pi * u)))[:, None]
         h = np.fft.irfft(Hv, n=N, axis=1)
         peak = float(np.max(np.abs(h))) or 1.0
         leakage = float(np.max(np.abs(h[:, L:]))) / peak
