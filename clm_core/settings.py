@@ -476,6 +476,29 @@ DOMAIN_ID: Setting[int] = Setting(
     "ROS_DOMAIN_ID set to it)", minimum=0, maximum=232, flags=("--domain",),
 )
 
+# free-field receivers (clm simulate --receivers, the receiver node; clm_core.freefield)
+RECEIVERS: Setting[str] = Setting(
+    "receivers", str, None, "m", "free-field receivers at these distances from the track axis, comma-separated "
+    "(e.g. 8,16,32): velocity, PPV, KB_F,max (DIN 4150-2) and 1/3-octave levels", rule=_numbers_rule,
+    none_means="none (no free-field output)", ros_unset="",
+)
+RECEIVERS_FILE: Setting[str] = Setting(
+    "receivers_file", str, None, "-", "free-field receivers from a CSV file of x, y [m] rows (header optional)",
+    none_means="none", ros_unset="",
+)
+RECEIVER_X: Setting[float] = Setting(
+    "receiver_x", float, None, "m", "position along the track of the --receivers distances",
+    none_means="the middle of the recorded stretch of sleepers", ros_unset=math.nan, minimum=-1e7, maximum=1e7,
+)
+RECEIVER_SOIL: Setting[str] = Setting(
+    "receiver_soil", str, None, "-", "soil of the free-field computation: a soil preset, a profile YAML, or "
+    "E=..,rho=..,nu=..[,beta=..] (homogeneous half-space)", none_means="the profile of --soil", ros_unset="",
+)
+RECEIVER_INFLUENCE: Setting[float] = Setting(
+    "receiver_influence", float, 60.0, "m", "sleepers within this distance along the track of a receiver act on it",
+    minimum=1.0, maximum=1000.0,
+)
+
 #: Every run setting by name.
 SETTINGS: Mapping[str, Setting[Any]] = {
     s.name: s
@@ -486,6 +509,7 @@ SETTINGS: Mapping[str, Setting[Any]] = {
         LOADS_FILE, VEHICLE, CARS, TRAIN, IRREGULARITY, SEED, WAVELENGTH_BAND, LEAD_IN, HERTZ, TRACK_ENGINE, RATE,
         CLOSED_LOOP, LAG_BUDGET, REALTIME_PRIORITY, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS,
         MARKERS_PERIOD, TRAINS, HEADWAY, TRAIN_PAUSE, TRACK_NODE, ANSWER_TIMEOUT, EXIT_WHEN_DONE, DOMAIN_ID,
+        RECEIVERS, RECEIVERS_FILE, RECEIVER_X, RECEIVER_SOIL, RECEIVER_INFLUENCE,
     )
 }
 

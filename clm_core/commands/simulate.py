@@ -85,6 +85,9 @@ def register(sub: Any) -> None:
     add_setting(g, "lead_in")
     add_setting(g, "hertz")
     add_setting(g, "track_engine")
+    r = p.add_argument_group("free-field receivers (two-step method, clm_core.freefield)")
+    for name in ("receivers", "receivers_file", "receiver_x", "receiver_soil", "receiver_influence"):
+        add_setting(r, name)
 
 
 def _floats(text: str, what: str) -> Any:
@@ -125,8 +128,13 @@ def run(args: argparse.Namespace) -> int:
     with output_dir(args.out, args.overwrite) as d_out:
         params = model_from_args(args)
         if args.vehicle:
-            return _run_vehicle(args, params, d_out, t_setup)
-        return _run_loads(args, params, d_out, t_setup)
+            code = _run_vehicle(args, params, d_out, t_setup)
+        else:
+            code = _run_loads(args, params, d_out, t_setup)
+        from clm_core.freefield.run import receivers_for_run
+
+        receivers_for_run(args, params, d_out)
+        return code
 
 
 def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: float) -> int:

@@ -49,6 +49,7 @@ setup(
             "track_node = clm_ros.track_node:main",
             "vehicle_node = clm_ros.vehicle_node:main",
             "calibration_node = clm_ros.calibration_node:main",
+            "receiver_node = clm_ros.receiver_node:main",
         ],
         # sub-commands of the core's `clm` command (clm_core.cli loads this group; the core never imports clm_ros)
         "clm.commands": [
