@@ -51,6 +51,9 @@ POLL = 0.005
 START_LEAD = 0.3
 #: Longest wait for the answers of a finished train to reach the bag [s].
 ANSWERS_TIMEOUT = 60.0
+#: Longest wait for the node processes to exit after SIGINT, all together [s] (then SIGTERM, then SIGKILL):
+#: a loaded machine can take many seconds to tear a process down.
+STOP_TIMEOUT = 45.0
 #: Terminal train states.
 ENDED = ("done", "failed", "timeout")
 
@@ -289,11 +292,10 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
                 for t in trains:
                     said = t.status.get("state") or "no status from its vehicle"
                     t.end("timeout", f"not done {timeout:g} s after its start (vehicle: {said})")
-        if rec is not None:  # the answers of every finished train in the bag (the recorded data itself)
+        if rec is not None:  # every finished train complete in the bag: the recorded data itself says so
             t1 = time.monotonic()
-            while time.monotonic() - t1 < ANSWERS_TIMEOUT and any(
-                    rec.counts[t.spec.topic("sleeper_response")] < rec.counts[t.spec.topic("wheel_loads")]
-                    for t in trains if t.state == "done"):
+            while time.monotonic() - t1 < ANSWERS_TIMEOUT and not all(_recorded(rec, t) for t in trains
+                                                                         if t.state == "done"):
                 spin_for(0.05)
                 check_processes()
         rec_cpu = time.process_time() - rec_cpu0
@@ -301,6 +303,9 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             n = published(t) - t.n0
             cpu1 = {k: proc_cpu_s(q.pid) for k, q in t.procs.items()}
             t.cpu_us = {k: _per(t.cpu0.get(k), cpu1[k], n) for k in cpu1}
+    except KeyboardInterrupt:  # the user stopped the run: what ran is recorded and summarised all the same
+        for t in trains:
+            t.end("failed", "interrupted (SIGINT) before its train was done")
     finally:
         if rec is not None:
             counts = _close(rec)
@@ -308,7 +313,7 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             n.destroy_node()
         procs = {_proc_key(t, k): q for k in ("vehicle_node", "track_node", "pair") for t in trains
                  for k2, q in t.procs.items() if k2 == k}
-        stop_processes(procs.values(), timeout=15)
+        stop_processes(procs.values(), timeout=STOP_TIMEOUT)
         for f in logs.values():
             f.close()
         rclpy.try_shutdown(context=ctx)
@@ -319,6 +324,15 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             t.state, t.reason = "failed", f"node(s) did not exit cleanly: {bad}; see the logs in {out}/"
     concurrency.update(_concurrency(trains))
     return RunResult(trains, codes, counts, rec_cpu, concurrency, bag, domain_id)
+
+
+def _recorded(rec: Any, t: Train) -> bool:
+    """Whether the bag holds every wheel-load message train ``t``'s vehicle published (its final figures) and an
+    answer to each (a recorder that falls behind under load catches up before the bag is closed)."""
+    c = rec.counts
+    n = int(t.final.get("train.published", 0) or 0)
+    w = c[t.spec.topic("wheel_loads")]
+    return bool(w >= n and c[t.spec.topic("sleeper_response")] >= w and c[t.spec.topic("wheel_rail_response")] >= w)
 
 
 def _proc_key(t: Train, kind: str) -> str:
