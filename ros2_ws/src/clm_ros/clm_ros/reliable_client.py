@@ -193,7 +193,12 @@ class GoalTracker:
 
     def _forget(self, fut: Any) -> None:
         """Drop a pending goal request (a late response to it is then ignored by rclpy)."""
-        self.action._remove_pending_request(fut, self.action._pending_goal_requests)
+        self.action._remove_pending_goal_request(fut)
+
+    def forget_result_request(self, fut: Any) -> None:
+        """Drop a pending result request (a late response is then ignored; the goal's feedback still comes)."""
+        seq = self.action._remove_pending_request(fut, self.action._pending_result_requests)
+        self.action._result_sequence_number_to_goal_id.pop(seq, None)
 
     def _handle(self, gid: Any, stamp: Any) -> Any:
         """A ``ClientGoalHandle`` of an accepted goal whose response was lost, known to the client (its status,
@@ -230,7 +235,7 @@ class GoalTracker:
             if time.monotonic() >= deadline:
                 raise TimeoutError(f"goal of {self.action._action_name}: no result within {timeout:g} s (status "
                                    f"{self.status.get(key, ('unknown',))[0]})")
-            self.action._remove_pending_request(fut, self.action._pending_result_requests)
+            self.forget_result_request(fut)
             fut = handle.get_result_async()
             self.resent += 1
 
@@ -258,7 +263,7 @@ class GoalTracker:
                 return response
             if time.monotonic() >= deadline:
                 raise TimeoutError(f"goal of {self.action._action_name}: no cancel response within {timeout:g} s")
-            self.action._remove_pending_request(fut, self.action._pending_cancel_requests)
+            self.action._remove_pending_cancel_request(fut)
             fut = handle.cancel_goal_async()
             sent += 1
             self.resent += 1
