@@ -126,7 +126,7 @@ class RunResult:
 
 def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[str, str],
                topics: Mapping[str, str] | None, bag_name: str, storage: str, timeout: float,
-               ready_timeout: float = 120.0, log_name: Callable[[TrainSpec, str], str] | None = None,
+               ready_timeout: float | None = None, log_name: Callable[[TrainSpec, str], str] | None = None,
                progress: Callable[[int], None] | None = None) -> RunResult:
     """Run ``specs``' trains to their end; record ``topics`` (None: no bag) to ``out/bag_name``.
 
@@ -144,8 +144,9 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
     timeout : float
         Longest time from the common start to the end of every train [s]; the trains still running then end
         ``timeout``.
-    ready_timeout : float
-        Longest time for every train to be ready [s]; a train not ready then ends ``failed`` (the others run).
+    ready_timeout : float, optional
+        Longest time for every train to be ready [s] (default ``timeout``: a loaded machine can take minutes to
+        start the processes); a train not ready then ends ``failed`` (the others run).
     log_name : callable
         ``(spec, kind) -> file stem`` of a node process's log (default ``<name>_<kind>``).
     progress : callable
@@ -161,6 +162,7 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
     from clm_ros.latched import LATCHED_QOS, VEHICLE_STATUS, status_values
     from clm_ros.readiness import START_AT
 
+    ready_timeout = timeout if ready_timeout is None else ready_timeout
     bag = out / bag_name if topics is not None else None
     if bag is not None and bag.exists():
         shutil.rmtree(bag)

@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from clm_core.errors import ClmError
 from clm_core.io.files import write_json
 from clm_core.io.report_index import write_index
 from clm_core.peaks import masked_max, peak_window
@@ -77,6 +78,7 @@ def run_demo(
     hold_domain: bool = True,
     timeout: float = 300.0,
     overwrite: bool = False,
+    ready_timeout: float | None = None,
 ) -> dict[str, Any]:
     """Run the demo; return the summary (also written to ``out_dir/summary.json``).
 
@@ -87,7 +89,9 @@ def run_demo(
     passes ``hold_domain=False``). An existing bag in ``out_dir`` is refused
     unless ``overwrite``. A progress bar shows the recorded wheel-load
     messages on a terminal. The demo is a one-train run of the run harness
-    (:func:`clm_ros.harness.run_trains`).
+    (:func:`clm_ros.harness.run_trains`): ``ready_timeout`` bounds the wait
+    for the nodes to be ready (default ``timeout``), ``timeout`` the train
+    after its start [s].
 
     Raises
     ------
@@ -101,12 +105,12 @@ def run_demo(
     if bag.exists() and not overwrite:
         raise ClmRosError(f"{bag}: exists; choose another output directory or pass overwrite (--overwrite)")
     if not hold_domain:
-        return _run_demo(run.domain_id, Path(out_dir), run, timeout)
+        return _run_demo(run.domain_id, Path(out_dir), run, timeout, ready_timeout)
     with hold_domain_id(run.domain_id) as dom:
-        return _run_demo(dom, Path(out_dir), run, timeout)
+        return _run_demo(dom, Path(out_dir), run, timeout, ready_timeout)
 
 
-def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float) -> dict[str, Any]:
+def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float, ready_timeout: float | None) -> dict[str, Any]:
     spec = TrainSpec(
         "demo", "", {**run.track_parameters(), "monitored_sleepers": DEMO_MONITORED_SLEEPERS},
         # one train, then the vehicle idles until stopped here; it waits for its track node and this recorder
@@ -114,7 +118,8 @@ def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float) -> dict[str
     bar = Progress(run.messages, "clm demo", unit="msg")
     try:
         r = run_trains(out, [spec], domain_id=dom, env=ros_env(dom), topics=TOPICS, bag_name="demo_bag",
-                       storage=run.storage, timeout=timeout, log_name=lambda _s, kind: kind,
+                       storage=run.storage, timeout=timeout, ready_timeout=ready_timeout,
+                       log_name=lambda _s, kind: kind,
                        progress=bar.update_to)
     finally:
         bar.close()
@@ -126,7 +131,7 @@ def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float) -> dict[str
     summary["cpu_us_per_message"] = cpu if n > 0 else {}
     try:
         summary.update(analyse_bag(out / "demo_bag", out))
-    except ClmRosError as exc:  # an abnormal run: nothing to plot; the summary says why
+    except (ClmRosError, ClmError) as exc:  # an abnormal run: nothing (or no bag) to plot; the summary says why
         summary["reason"] = "; ".join(x for x in (summary["reason"], str(exc)) if x)
         summary["status"] = "failed" if summary["status"] == "ok" else summary["status"]
     v = train.final
