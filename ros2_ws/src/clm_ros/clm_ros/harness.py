@@ -300,6 +300,10 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
                                                                          if t.state == "done"):
                 spin_for(0.05)
                 check_processes()
+            if "/diagnostics" in rec.counts:  # the nodes' last counters in the bag: two more /diagnostics of each
+                n_diag, t2 = rec.counts["/diagnostics"], time.monotonic()
+                while rec.counts["/diagnostics"] < n_diag + 4 * len(trains) and time.monotonic() - t2 < 5:
+                    spin_for(0.05)
         rec_cpu = time.process_time() - rec_cpu0
         for t in trains:
             n = published(t) - t.n0
