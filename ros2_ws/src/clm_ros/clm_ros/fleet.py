@@ -198,7 +198,11 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
         f["correct"] = bool(t.state == "done" and f["in_equals_out"] and f.get("offline_equal", True)
                             and "check_error" not in f)
         if t.state == "done" and not f["correct"]:
-            f["status"], f["reason"] = "wrong", "in != out or not equal to the offline replay"
+            v = f["vehicle_node"]
+            f["status"], f["reason"] = "wrong", (
+                f"in = out: {f['in_equals_out']} (recorded {f['messages_in']} in, {f['messages_out']} out; the vehicle "
+                f"published {v.get('published')}, {v.get('answered')} answered); equal to the offline replay: "
+                f"{f.get('offline_equal', 'not checked')} (max difference {f.get('offline_max_abs_diff')})")
         per_train[t.spec.name] = f
     summary.update({
         "status": "ok" if all(t["correct"] for t in per_train.values()) and r.ok else "failed",

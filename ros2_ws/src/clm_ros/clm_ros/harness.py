@@ -246,13 +246,16 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
                 return int(rec.counts.get(t.spec.topic("wheel_loads"), 0))
             return t.published_live or int(t.status.get("train.published", 0) or 0)
 
-        # readiness: the vehicle says it is ready (its own track node matched) and the recorder has the answers
+        # readiness: the vehicle says it is ready (its own track node matched, its writer matched the recorder's
+        # reader) and the recorder's readers have matched the vehicle's and the track node's writers (discovery is
+        # two-sided: a reader that has not matched a writer yet misses what it sends, and the first wheel loads
+        # of every train were missing from a bag at load 100)
         t_up = time.monotonic()
         while True:
             spin_for(0.02)
             check_processes()
             for t in trains:
-                answers = [t.spec.topic("sleeper_response"), t.spec.topic("wheel_rail_response")]
+                answers = [t.spec.topic(x) for x in ("wheel_loads", "sleeper_response", "wheel_rail_response")]
                 if t.state == "starting" and "waiting for the start signal" in t.status.get("state", "") and (
                         rec is None or rec.matched(answers)):
                     t.state = "ready"
