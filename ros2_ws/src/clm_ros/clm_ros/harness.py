@@ -84,6 +84,7 @@ class Train:
     spec: TrainSpec
     procs: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     status: dict[str, str] = field(default_factory=dict)
+    track: dict[str, str] = field(default_factory=dict)  # the latest latched status of its track node
     state: str = "starting"
     reason: str = ""
     published_live: int = 0  # wheel-load messages its vehicle last reported on /diagnostics (no recorder)
@@ -159,7 +160,7 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
     from std_msgs.msg import Int64
 
     from clm_ros.bag_tools import BagRecorder
-    from clm_ros.latched import LATCHED_QOS, VEHICLE_STATUS, status_values
+    from clm_ros.latched import LATCHED_QOS, TRACK_STATUS, VEHICLE_STATUS, status_values
     from clm_ros.readiness import START_AT
 
     ready_timeout = timeout if ready_timeout is None else ready_timeout
@@ -216,7 +217,11 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             def on_status(msg: Any, t: Train = t) -> None:
                 t.status = status_values(msg)
 
+            def on_track(msg: Any, t: Train = t) -> None:
+                t.track = status_values(msg)
+
             watcher.create_subscription(DiagnosticArray, t.spec.topic(VEHICLE_STATUS), on_status, LATCHED_QOS)
+            watcher.create_subscription(DiagnosticArray, t.spec.topic(TRACK_STATUS), on_track, LATCHED_QOS)
             starters[t.spec.name] = watcher.create_publisher(Int64, t.spec.topic(START_AT), LATCHED_QOS)
         if topics is None:  # progress from the vehicles' periodic diagnostics (best effort: only a progress bar)
             by_ns = {t.spec.ns: t for t in trains}
@@ -247,9 +252,10 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             return t.published_live or int(t.status.get("train.published", 0) or 0)
 
         # readiness: the vehicle says it is ready (its own track node matched, its writer matched the recorder's
-        # reader) and the recorder's readers have matched the vehicle's and the track node's writers (discovery is
-        # two-sided: a reader that has not matched a writer yet misses what it sends, and the first wheel loads
-        # of every train were missing from a bag at load 100)
+        # reader), the recorder's readers have matched the vehicle's and the track node's writers, and the track
+        # node says its answer writers have matched every known reader (discovery is two-sided: a writer sends
+        # nothing to a reader it has not matched, a reader drops what comes from a writer it has not matched; the
+        # first wheel load and its answers were missing from a bag of every train of a 5-train fleet)
         t_up = time.monotonic()
         while True:
             spin_for(0.02)
@@ -257,7 +263,7 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             for t in trains:
                 answers = [t.spec.topic(x) for x in ("wheel_loads", "sleeper_response", "wheel_rail_response")]
                 if t.state == "starting" and "waiting for the start signal" in t.status.get("state", "") and (
-                        rec is None or rec.matched(answers)):
+                        rec is None or (rec.matched(answers) and _answers_matched(watcher, t))):
                     t.state = "ready"
             if all(t.state != "starting" for t in trains):
                 break
@@ -333,6 +339,16 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             t.state, t.reason = "failed", f"node(s) did not exit cleanly: {bad}; see the logs in {out}/"
     concurrency.update(_concurrency(trains))
     return RunResult(trains, codes, counts, rec_cpu, concurrency, bag, domain_id)
+
+
+def _answers_matched(node: Any, t: Train) -> bool:
+    """Whether train ``t``'s track node says (latched ``track_status``) that its answer writers have matched every
+    reader of them known on the graph (this recorder's among them): the writers' side of the recorder's match."""
+    for topic in ("sleeper_response", "wheel_rail_response"):
+        said = t.track.get(f"{topic}_readers_matched", "")
+        if not said.isdigit() or int(said) < len(node.get_subscriptions_info_by_topic(t.spec.topic(topic))):
+            return False
+    return True
 
 
 def _recorded(rec: Any, t: Train) -> bool:

@@ -97,3 +97,10 @@ def follow(node: Node, topic: str, what: str, state: Callable[[], tuple[int, str
     status = LatchedStatus(node, topic, what)
     node.create_timer(period, lambda: status.update(*state()), clock=Clock(clock_type=ClockType.STEADY_TIME))
     return status
+
+
+def matched_readers(**publishers: Any) -> dict[str, int]:
+    """``{'<topic>_readers_matched': n}``: the readers each publisher (None: 0) has matched, for a latched status
+    (a supervisor compares them with the readers it knows on the graph: discovery is two-sided)."""
+    return {f"{name}_readers_matched": int(p.get_subscription_count()) if p is not None else 0
+            for name, p in publishers.items()}
