@@ -54,6 +54,8 @@ ANSWERS_TIMEOUT = 60.0
 #: Longest wait for the node processes to exit after SIGINT, all together [s] (then SIGTERM, then SIGKILL):
 #: a loaded machine can take many seconds to tear a process down.
 STOP_TIMEOUT = 45.0
+#: Fast DDS transports of the supervisor's own participant (env ``FASTDDS_BUILTIN_TRANSPORTS``, set unless given).
+SUPERVISOR_TRANSPORTS = "UDPv4"
 #: Terminal train states.
 ENDED = ("done", "failed", "timeout")
 
@@ -169,6 +171,11 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
         shutil.rmtree(bag)
     out.mkdir(parents=True, exist_ok=True)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
+    # this process (recorder, watcher) talks to the nodes over UDP on loopback, not Fast DDS shared memory: a
+    # supervisor starved under load let its shared-memory port fill, the nodes' writers then stopped delivering to
+    # it for good (39 of 5001 wheel loads recorded, the latched end of train never received: two trains "timeout")
+    # whereas a UDP reader that falls behind is repaired by the reliable protocol. The nodes keep their transports.
+    os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", SUPERVISOR_TRANSPORTS)
     if "ROS_STATIC_PEERS" in env:
         os.environ["ROS_STATIC_PEERS"] = env["ROS_STATIC_PEERS"]
     trains = [Train(s) for s in specs]
