@@ -28,6 +28,10 @@ Control-plane facts are state, never one message (issue 21):
 
 Train states: ``starting``, ``ready``, ``running``, ``done`` (its vehicle
 finished the train), ``failed`` and ``timeout``.
+
+The supervisor's own DDS participant (recorder, watcher) uses UDP on loopback
+(:data:`SUPERVISOR_TRANSPORTS`): a supervisor starved by the scheduler must
+not lose the nodes for good, which Fast DDS shared memory did (docs/fleet.md).
 """
 
 from __future__ import annotations
