@@ -15,35 +15,21 @@ from typing import Any
 
 import pytest
 import rclpy
+from clm_ros.reliable_client import RESEND_S, answered
 from rclpy.context import Context
 from rclpy.executors import Executor, SingleThreadedExecutor
 
-#: Seconds after which a query (get_state, parameters) is sent again when no answer has come. A service that
-#: takes a request before it has matched the new client's response reader drops the response ("failed to send
-#: response (timeout): client will not receive response", rmw_fastrtps; seen once in CI: a get_state never
-#: answered in 120 s); the request sent again goes through the matched path. Only for requests that change
-#: nothing: a transition sent twice would be a second transition.
-RESEND_QUERY = 2.0
+#: Seconds after which a query (get_state, parameters) is sent again when no answer has come (the race and its
+#: remedies: clm_ros.reliable_client, docs/ros-nodes.md "Service and action races"). Only for requests that change
+#: nothing: a transition sent twice would be a second transition (clm_ros.reliable_client.transition_confirmed).
+RESEND_QUERY = RESEND_S
 
 
 def answer(cli: Any, request: Any, until: Callable[[Callable[[], bool], float], None], timeout: float,
            resend_after: float | None = None) -> Any:
-    """The response of ``cli`` to ``request``; sent again every ``resend_after`` s while unanswered (None: once).
-
-    ``until(done, seconds)`` spins until ``done()`` or ``seconds`` have passed; :class:`TimeoutError` after
-    ``timeout`` s in all.
-    """
-    deadline = time.monotonic() + timeout
-    fut = cli.call_async(request)
-    while True:
-        left = deadline - time.monotonic()
-        until(fut.done, left if resend_after is None else min(resend_after, left))
-        if fut.done():
-            return fut.result()
-        if time.monotonic() >= deadline:
-            raise TimeoutError(f"no answer of {cli.srv_name} within {timeout:g} s")
-        cli.remove_pending_request(fut)
-        fut = cli.call_async(request)
+    """The response of ``cli`` to ``request``; sent again every ``resend_after`` s while unanswered (None: once)
+    (:func:`clm_ros.reliable_client.answered`; :class:`TimeoutError` after ``timeout`` s in all)."""
+    return answered(cli, request, until, timeout, resend_after)
 
 
 class ClientNode:

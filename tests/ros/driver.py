@@ -21,6 +21,7 @@ from typing import Any
 import rclpy
 from clientnode import RESEND_QUERY, answer
 from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
+from clm_ros.reliable_client import transition_confirmed
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
@@ -185,7 +186,18 @@ class Driver:
     def transition(self, name: str, timeout: float = 60.0) -> bool:
         """Trigger lifecycle transition ``name`` (configure, activate, ..., active_shutdown)."""
         req = ChangeState.Request(transition=Transition(id=TRANSITIONS[name]))
-        return bool(self.call(ChangeState, "change_state", req, timeout).success)
+        cli = self._clients.get("change_state")
+        if cli is None:
+            cli = self._clients["change_state"] = self.node.create_client(ChangeState, f"{NODE}/change_state")
+        self.wait_for(cli.service_is_ready, timeout, "service change_state")
+
+        def until(done: Callable[[], bool], seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while not done() and time.monotonic() < end:
+                self.spin(0.02)
+
+        # a lost answer: the node's state says whether the transition happened (clm_ros.reliable_client)
+        return transition_confirmed(lambda: cli.call_async(req), self.state, name, until, timeout)
 
     def state(self) -> str:
         """The node's lifecycle state label."""
@@ -196,7 +208,7 @@ class Driver:
         """Set one DOUBLE parameter; the ``SetParametersResult``."""
         req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
             type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
-        return self.call(SetParameters, "set_parameters", req).results[0]
+        return self.call(SetParameters, "set_parameters", req, resend_after=RESEND_QUERY).results[0]  # idempotent
 
     def close(self) -> None:
         self.exec.shutdown()

@@ -5,6 +5,8 @@
   vehicle's own counts), its answers equal bit for bit to the offline replay of its recorded wheel loads, every
   node exits 0 on SIGINT, and the overall figures are the worst of the per-train ones;
 - the same with each pair's two nodes in one process (``pair_process``);
+- a node killed with SIGKILL in the middle of its train ends only its own train (``failed``, with the reason):
+  the other train finishes, correct; the bag and a summary with every train's status survive; exit 1;
 - bad arguments give a clear error before anything starts;
 - the launch file (``ros2 launch clm_ros fleet.launch.py``) makes the same pairs (run against stand-ins of
   launch/launch_ros, as tests/ros/test_packaging.py does).
@@ -15,13 +17,17 @@ No figure of speed is asserted (a shared 2-core machine): benchmarks/fleet_capac
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import time
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from tests.clitools import run_clm
+from tests.clitools import CLM, run_clm
 
 DURATION = 0.3
 N_MSG = round(DURATION * 1000) + 1
@@ -87,6 +93,65 @@ def test_fleet_pair_process_same_answers(tmp_path: Path, ros_domain_id: int) -> 
     assert t["messages_in"] == t["messages_out"] == t["feedback_total"] == N_MSG and t["in_equals_out"]
     assert t["offline_equal"] and t["offline_compared"] == 2 * N_MSG and t["correct"]
     assert set(t["cpu_us_per_message"]) == {"pair"}
+
+
+def _children(pid: int) -> dict[int, str]:
+    """{pid: command line} of the children of process ``pid``."""
+    out = {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            if ppid == pid:
+                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, IndexError, ValueError):
+            continue
+    return out
+
+
+def test_fleet_node_killed_keeps_the_others_bag_and_summary(tmp_path: Path, ros_domain_id: int,
+                                                             ros_env: dict[str, str]) -> None:
+    """Issue 26.6: kill -9 of one train's track node in the middle of its train."""
+    from clm_core.io.bags import BagReader
+
+    out = tmp_path / "fleet"
+    duration = 4.0
+    n_msg = round(duration * 1000) + 1
+    # the test holds the domain (fixture); the fleet joins it (--join-domain)
+    proc = subprocess.Popen([*CLM, "fleet", "--trains", "2", "--duration", str(duration), "--domain",
+                             str(ros_domain_id), "--join-domain", "--out", str(out)], env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        log = out / "train_1_vehicle_node.log"
+        deadline = time.monotonic() + 240
+        while not (log.exists() and "train 1 starts" in log.read_text()):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.1)
+        time.sleep(0.5)  # in the middle of its train
+        victims = [p for p, cmd in _children(proc.pid).items() if "clm_ros.track_node" in cmd and "/train_1" in cmd]
+        assert len(victims) == 1, _children(proc.pid)
+        os.kill(victims[0], signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 1, (stdout, stderr)
+    assert "train_1: failed: track node exited with code -9 during its train" in stderr, stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed"
+    dead, alive = s["trains"]["train_1"], s["trains"]["train_0"]
+    assert dead["status"] == "failed" and "exited with code -9" in dead["reason"] and not dead["correct"]
+    assert dead["exit_codes"]["track_node"] == -signal.SIGKILL
+    assert alive["status"] == "ok" and alive["reason"] == "" and alive["correct"]
+    assert alive["messages_in"] == alive["messages_out"] == n_msg and alive["offline_equal"]
+    assert s["overall"]["status"] == {"train_0": "ok", "train_1": "failed"}
+    # the bag survives, with the healthy train complete and what the dead one recorded until it died
+    with BagReader(out / "fleet_bag") as reader:
+        counts = {t: info.message_count for t, info in reader.topics.items()}
+    assert counts["/train_0/wheel_loads"] == counts["/train_0/sleeper_response"] == n_msg
+    assert 0 < counts["/train_1/sleeper_response"] < n_msg
 
 
 @pytest.mark.parametrize(("args", "message"), [

@@ -5,20 +5,25 @@
 and recorder:
 
 1. takes the ROS domain ``domain_id`` (held exclusively among the clm runs of
-   this machine; discovery on loopback unless ``discovery_range`` says
-   otherwise, docs/fleet.md);
-2. starts N track-soil nodes (``clm_ros.track_node``), the pair ``i`` in the
-   namespace ``/train_i`` (``i`` from ``first_index``, so that another host
-   can add further pairs to the same graph), then, once this process records
-   their answers, N vehicle simulator nodes (``clm_ros.vehicle_node``) in the
-   same namespaces, each one train of ``duration`` s with the irregularity seed
-   ``seed + i``. Every vehicle waits for its own track node (and the
-   recorder), so each pair starts with its first message;
+   this machine unless ``hold_domain`` is off, ``--join-domain``: then it
+   joins the graph of that domain, e.g. another fleet's; discovery on
+   loopback unless ``discovery_range`` says otherwise, docs/fleet.md);
+2. runs N trains through the run harness (:mod:`clm_ros.harness`, the demo's):
+   N track-soil nodes (``clm_ros.track_node``) and N vehicle simulator nodes
+   (``clm_ros.vehicle_node``), the pair ``i`` in the namespace ``/train_i``
+   (``i`` from ``first_index``, so that another host can add further pairs to
+   the same graph), each one train of ``duration`` s with the irregularity
+   seed ``seed + i``. Every vehicle waits for its own track node (its
+   namespace, its endpoints matched: :mod:`clm_ros.readiness`) and the
+   recorder; once every train is ready they start together (or ``stagger`` s
+   apart);
 3. records ``/train_i/wheel_loads``, ``/train_i/sleeper_response``,
    ``/train_i/wheel_rail_response`` of every pair and ``/diagnostics`` to one
    bag (``DIR/fleet_bag``, :class:`clm_ros.bag_tools.BagRecorder`, polled:
    log time = reception time by this process's middleware);
-4. when every vehicle reports its train done and every wheel-load message is
+4. when every vehicle's latched status says its train is done (or its train
+   failed: a node that died, even kill -9, ends only its own train) and every
+   wheel-load message is
    answered, stops all nodes (SIGINT, each must exit 0), then checks each
    pair: in = out (each wheel-load message answered once, in order: the
    responses' stamps are the wheel loads' stamps) and, with ``verify``, its
@@ -31,9 +36,13 @@ and recorder:
 message (recorder: reception of ``sleeper_response`` minus the stamp of its
 wheel-load message, as the demo; ``vehicle_lag_*``: the vehicle's own
 reception of ``wheel_rail_response`` minus the due time), the offline check,
-each node's CPU per message; ``overall``: the worst of each figure and
-whether every pair is correct. Without the recorder (``record=False``, the
-capacity benchmark) the counts and lags are the vehicles' own.
+each node's CPU per message, its ``status`` (``ok``, ``failed``, ``timeout``,
+``wrong``) and ``reason``; ``overall``: the worst of each figure, whether
+every pair is correct, how many trains ran at once (``max_running_at_once``,
+``started_together``, ``start_spread_s``). The summary is written and the bag
+kept whatever happened; then a train that is not ``ok`` makes the run an
+error. Without the recorder (``record=False``, the capacity benchmark) the
+counts and lags are the vehicles' own.
 
 Users with a full ROS install get the same graph from
 ``ros2 launch clm_ros fleet.launch.py trains:=N``.
@@ -41,15 +50,8 @@ Users with a full ROS install get the same graph from
 
 from __future__ import annotations
 
-import gc
 import os
-import shutil
-import subprocess
-import sys
 import tempfile
-import time
-from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
@@ -58,8 +60,8 @@ import numpy as np
 from clm_core import settings
 from clm_core.io.files import write_json
 from clm_ros.errors import ClmRosError
-from clm_ros.launcher import POLL, _number, _stop
-from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env
+from clm_ros.harness import Train, TrainSpec, number, run_trains
+from clm_ros.processes import hold_domain_id, ros_env
 from clm_ros.run_settings import RunSettings
 
 #: Namespace of pair ``i``: ``/train_i``.
@@ -100,37 +102,6 @@ def fleet_env(domain_id: int, discovery_range: str = "LOCALHOST", static_peers: 
     return env
 
 
-@dataclass
-class _Pair:
-    """One train: its namespace, processes and what the launcher saw of them."""
-
-    ns: str
-    procs: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
-    vehicle: dict[str, str] = field(default_factory=dict)
-    final: dict[str, str] = field(default_factory=dict)
-    cpu0: dict[str, float | None] = field(default_factory=dict)
-    cpu_us: dict[str, float | None] = field(default_factory=dict)
-    n0: int = 0
-
-
-class _Watch:
-    """The vehicles' /diagnostics of every pair (their status names carry the nodes' namespaces)."""
-
-    def __init__(self, pairs: list[_Pair]) -> None:
-        self.pairs = {p.ns: p for p in pairs}
-
-    def on_diagnostics(self, msg: Any) -> None:
-        for status in msg.status:
-            ns = status.name.split(":", 1)[0].rsplit("/", 1)[0]
-            pair = self.pairs.get(ns)
-            if pair is None:
-                continue
-            if "vehicle simulator" in status.name:
-                pair.vehicle = {kv.key: kv.value for kv in status.values}
-                if pair.vehicle.get("final_train"):
-                    pair.final = pair.vehicle
-
-
 def run_fleet(
     out_dir: str | Path = "results/fleet",
     run: RunSettings | None = None,
@@ -146,36 +117,44 @@ def run_fleet(
     overwrite: bool = False,
     progress: bool = True,
     pair_process: bool = False,
+    stagger: float = 0.0,
 ) -> dict[str, Any]:
     """Run ``trains`` vehicle + track node pairs; return the summary (also ``out_dir/summary.json``).
 
     ``run``: what each pair runs (default: the run settings of
     :mod:`clm_core.settings`; pair ``i`` with the irregularity seed
-    ``seed + i``), in the ROS domain ``run.domain_id``. ``record``: record the
+    ``seed + i``), in the ROS domain ``run.domain_id``, held exclusively among
+    the clm runs of this machine unless ``hold_domain`` is False (then the
+    fleet joins whatever graph runs in that domain, e.g. another fleet's with
+    another ``first_index``: the lock is a choice). ``record``: record the
     pairs' topics to ``out_dir/fleet_bag`` (needed by ``verify``, the
     offline check). ``discovery_range``/``static_peers``: DDS discovery of
     the node processes (docs/fleet.md: pairs on several hosts).
     ``pair_process``: each pair's two nodes in one process on one executor
-    (:mod:`clm_ros.fleet_pair`) instead of two processes.
+    (:mod:`clm_ros.fleet_pair`) instead of two processes. The trains start
+    together once all are ready; ``stagger`` [s]: train ``i`` starts
+    ``i * stagger`` after the first (a schedule).
 
     Raises
     ------
     ClmRosError
-        A bad argument, the domain in use, a node failed or exited early or did
-        not exit cleanly, the run did not finish within ``timeout`` s, or a
-        pair's answers are wrong (counts, order, offline replay): the summary
-        is written first.
+        A bad argument, the domain in use; or, after the summary is written and
+        the bag kept, a train that failed (a node died, was not ready, did not
+        exit cleanly), ran out of ``timeout`` or answered wrongly (counts,
+        order, offline replay).
     """
     run = RunSettings() if run is None else run
     check_fleet(trains, first_index)
     if verify and not record:
         raise ClmRosError("verify needs the recorded wheel loads: pass record (drop --no-record) or --no-verify")
+    if not 0.0 <= stagger <= 3600.0:
+        raise ClmRosError(f"stagger = {stagger:g}: must be 0 to 3600 s")
     bag = Path(out_dir) / "fleet_bag"
     if bag.exists() and not overwrite:
         raise ClmRosError(f"{bag}: exists; choose another output directory or pass overwrite (--overwrite)")
     env = fleet_env(run.domain_id, discovery_range, static_peers)  # checks the range before anything starts
     kw: dict[str, Any] = dict(trains=trains, first_index=first_index, record=record, verify=verify, timeout=timeout,
-                              progress=progress, pair_process=pair_process)
+                              progress=progress, pair_process=pair_process, stagger=stagger)
     if not hold_domain:
         return _run_fleet(run.domain_id, env, Path(out_dir), run, **kw)
     with hold_domain_id(run.domain_id) as dom:
@@ -183,157 +162,64 @@ def run_fleet(
 
 
 def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, trains: int, first_index: int,
-               record: bool, verify: bool, timeout: float, progress: bool, pair_process: bool) -> dict[str, Any]:
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.context import Context
-    from rclpy.experimental import EventsExecutor
-
+               record: bool, verify: bool, timeout: float, progress: bool, pair_process: bool,
+               stagger: float) -> dict[str, Any]:
     from clm_core.progress import Progress
-    from clm_ros.bag_tools import BagRecorder
 
-    bag = out / "fleet_bag"
-    if bag.exists():
-        shutil.rmtree(bag)
-    out.mkdir(parents=True, exist_ok=True)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
-    if "ROS_STATIC_PEERS" in env:
-        os.environ["ROS_STATIC_PEERS"] = env["ROS_STATIC_PEERS"]
-    pairs = [_Pair(ns) for ns in namespaces(trains, first_index)]
     track_params = run.track_parameters()
-    logs: dict[str, Any] = {}
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=dom)
-    watch = _Watch(pairs)
+    specs = [TrainSpec(ns.strip("/"), ns, track_params,
+                       run.vehicle_parameters(seed_offset=first_index + i, wait_for_subscribers=2 if record else 1),
+                       pair_process=pair_process, start_offset=i * stagger)
+             for i, ns in enumerate(namespaces(trains, first_index))]
+    topics = {f"{s.ns}/{t}": m for s in specs for t, m in PAIR_TOPICS.items()}
     bar = Progress(run.messages * trains if progress else None, "clm fleet", unit="msg")
-    nodes: list[Any] = []
-    rec: BagRecorder | None = None
-    summary: dict[str, Any] = {}
-    rec_cpu0 = 0.0
-
-    def start(pair: _Pair, kind: str, params: Mapping[str, Any]) -> None:
-        name = f"{pair.ns.strip('/')}_{kind}"
-        logs[name] = open(out / f"{name}.log", "w")
-        module = "fleet_pair" if kind == "pair" else kind
-        pair.procs[kind] = subprocess.Popen(
-            [sys.executable, "-m", f"clm_ros.{module}", *ros_args(params), "-r", f"__ns:={pair.ns}"],
-            env=env, stdout=logs[name], stderr=subprocess.STDOUT,
-        )
-
-    def check() -> None:
-        for pair in pairs:
-            for kind, p in pair.procs.items():
-                if p.poll() is not None:
-                    raise ClmRosError(f"{pair.ns} {kind.replace('_', ' ')} exited early with code {p.returncode}; "
-                                      f"see {out}/{pair.ns.strip('/')}_{kind}.log")
-
-    def vehicle_params(i: int) -> dict[str, Any]:
-        return run.vehicle_parameters(seed_offset=first_index + i, wait_for_subscribers=2 if record else 1)
-
     try:
-        for i, pair in enumerate(pairs):
-            if pair_process:  # the vehicle waits for the recorder (wait_for_subscribers) before its train starts
-                start(pair, "pair", {**track_params, **vehicle_params(i)})
-            else:
-                start(pair, "track_node", track_params)
-        watcher = rclpy.create_node("clm_fleet_watch", context=ctx)
-        nodes.append(watcher)
-        ex = EventsExecutor(context=ctx)
-        ex.add_node(watcher)
-        watcher.create_subscription(DiagnosticArray, "/diagnostics", watch.on_diagnostics, 50)
-        if record:
-            recorder = rclpy.create_node("clm_fleet_recorder", context=ctx)
-            nodes.append(recorder)
-            topics = {f"{p.ns}/{t}": m for p in pairs for t, m in PAIR_TOPICS.items()}
-            rec = BagRecorder(recorder, bag, {**topics, "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray"},
-                              storage=run.storage, polled=True)
-
-        def spin_for(seconds: float) -> None:
-            end = time.monotonic() + seconds
-            while (left := end - time.monotonic()) > 0:
-                ex.spin_once(timeout_sec=min(left, POLL))
-                if rec is not None:
-                    rec.poll()
-
-        t_up = time.monotonic()
-        answers = [f"{p.ns}/{t}" for p in pairs for t in ("sleeper_response", "wheel_rail_response")]
-        while rec is not None and not rec.matched(answers):
-            spin_for(0.02)
-            check()
-            if time.monotonic() - t_up > timeout:
-                raise ClmRosError(f"the track nodes' answers not discovered after {timeout:g} s; see {out}/*.log")
-        gc.collect()
-        gc.freeze()
-        for i, pair in enumerate(pairs):
-            if not pair_process:
-                start(pair, "vehicle_node", vehicle_params(i))
-        t0 = time.monotonic()
-        rec_cpu0 = time.process_time()
-        while not all(p.final for p in pairs):
-            spin_for(0.05)
-            for p in pairs:
-                n = _published(p, rec)
-                if n and not p.cpu0:  # this train started: CPU from here on
-                    p.cpu0 = {k: proc_cpu_s(q.pid) for k, q in p.procs.items()}
-                    p.n0 = n
-            bar.update_to(sum(_published(p, rec) for p in pairs))
-            check()
-            if time.monotonic() - t0 > timeout:
-                late = [p.ns for p in pairs if not p.final]
-                raise ClmRosError(f"trains {', '.join(late)} not done after {timeout:g} s; see {out}/*.log")
-        bar.close()
-        if rec is not None:  # every wheel-load message answered (or counted rejected) in the bag
-            t1 = time.monotonic()
-            while time.monotonic() - t1 < 60 and any(
-                    rec.counts[f"{p.ns}/sleeper_response"] < rec.counts[f"{p.ns}/wheel_loads"] for p in pairs):
-                spin_for(0.05)
-        rec_cpu = time.process_time() - rec_cpu0
-        for p in pairs:
-            n = _published(p, rec) - p.n0
-            cpu1 = {k: proc_cpu_s(q.pid) for k, q in p.procs.items()}
-            p.cpu_us = {k: _per(p.cpu0.get(k), cpu1[k], n) for k in cpu1}
-        n_all = sum(_published(p, rec) for p in pairs)
-        summary["recorder_cpu_us_per_message"] = 1e6 * rec_cpu / n_all if record and n_all else None
-        summary["message_counts"] = rec.close() if rec is not None else {}
+        r = run_trains(out, specs, domain_id=dom, env=env,
+                       topics={**topics, "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray"} if record else None,
+                       bag_name="fleet_bag", storage=run.storage, timeout=timeout, progress=bar.update_to)
     finally:
         bar.close()
-        if rec is not None and not rec.closed:
-            rec.abort()
-        for n in nodes:
-            n.destroy_node()
-        procs = {f"{p.ns}/{k}": q for k in ("vehicle_node", "track_node", "pair") for p in pairs
-                 for k2, q in p.procs.items() if k2 == k}
-        codes = _stop(procs)
-        for f in logs.values():
-            f.close()
-        rclpy.try_shutdown(context=ctx)
+    bag = out / "fleet_bag"
+    n_all = sum(r.message_counts.get(f"{s.ns}/wheel_loads", 0) for s in specs)
+    summary: dict[str, Any] = {
+        "recorder_cpu_us_per_message": 1e6 * r.recorder_cpu_s / n_all if record and n_all else None,
+        "message_counts": r.message_counts,
+    }
     per_train: dict[str, Any] = {}
-    for p in pairs:
-        t = _train_figures(p, codes)
-        if record:
-            t.update(_bag_figures(bag, p.ns))
-        if verify:
-            t.update(_offline_check(bag, p.ns, run))
-        t["correct"] = bool(t["in_equals_out"] and t.get("offline_equal", True))
-        per_train[p.ns.strip("/")] = t
+    for t in r.trains:
+        f = _train_figures(t, r.exit_codes)
+        try:
+            if record:
+                f.update(_bag_figures(bag, t.spec.ns))
+            if verify:
+                f.update(_offline_check(bag, t.spec.ns, run))
+        except Exception as exc:  # a train that recorded nothing (it never started): say so, keep going
+            f["check_error"] = str(exc)
+        f["correct"] = bool(t.state == "done" and f["in_equals_out"] and f.get("offline_equal", True)
+                            and "check_error" not in f)
+        if t.state == "done" and not f["correct"]:
+            v = f["vehicle_node"]
+            f["status"], f["reason"] = "wrong", (
+                f"in = out: {f['in_equals_out']} (recorded {f['messages_in']} in, {f['messages_out']} out; the vehicle "
+                f"published {v.get('published')}, {v.get('answered')} answered); equal to the offline replay: "
+                f"{f.get('offline_equal', 'not checked')} (max difference {f.get('offline_max_abs_diff')})")
+        per_train[t.spec.name] = f
     summary.update({
+        "status": "ok" if all(t["correct"] for t in per_train.values()) and r.ok else "failed",
         "trains": per_train,
-        "overall": _overall(per_train),
-        "exit_codes": codes,
+        "overall": {**_overall(per_train), **r.concurrency},
+        "exit_codes": r.exit_codes,
         "loadavg": list(os.getloadavg()),
         "n_trains": trains, "first_index": first_index, **run.summary(),
         "seeds": [run.seed + first_index + i for i in range(trains)],
         "bag": str(bag) if record else None, "ros_domain_id": dom,
-        "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"], "pair_process": pair_process,
+        "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"], "pair_process": pair_process, "stagger_s": stagger,
     })
     write_json(out / "summary.json", summary)
-    bad = {k: c for k, c in codes.items() if c != 0}
+    bad = [f"{k}: {t['status']}: {t['reason']}" for k, t in per_train.items() if not t["correct"]]
     if bad:
-        raise ClmRosError(f"node(s) did not exit cleanly on SIGINT: {bad}; see the logs in {out}/")
-    wrong = [k for k, t in per_train.items() if not t["correct"]]
-    if wrong:
-        raise ClmRosError(f"wrong answers of {', '.join(wrong)} (in != out or not equal to offline replay); see "
-                          f"{out}/summary.json")
+        raise ClmRosError(f"{'; '.join(bad)}; the summary is {out}/summary.json" + (f", the bag {bag}" if record
+                                                                                      else ""))
     return summary
 
 
@@ -344,23 +230,13 @@ def _decode(topic: str, data: bytes) -> Any:
     return getattr(messages, f"decode_{topic}")(data)
 
 
-def _published(p: _Pair, rec: Any) -> int:
-    """Wheel-load messages of pair ``p`` so far: recorded, or as its vehicle last reported."""
-    if rec is not None:
-        return int(rec.counts[f"{p.ns}/wheel_loads"])
-    return int(p.vehicle.get("train.published", 0))
-
-
-def _per(a: float | None, b: float | None, n: int) -> float | None:
-    return None if a is None or b is None or n <= 0 else round(1e6 * (b - a) / n, 1)
-
-
-def _train_figures(p: _Pair, codes: dict[str, int]) -> dict[str, Any]:
-    """What the vehicle of pair ``p`` reported at the end of its train, and its processes' exit codes."""
-    v = {k.removeprefix("train."): _number(x) for k, x in p.final.items() if k.startswith("train.")}
+def _train_figures(t: Train, codes: dict[str, int]) -> dict[str, Any]:
+    """Train ``t``'s status and reason, what its vehicle reported at the end of its train, its exit codes."""
+    v = {k.removeprefix("train."): number(x) for k, x in t.final.items() if k.startswith("train.")}
     published, answered = int(v.get("published", 0)), int(v.get("answered", 0))
+    ns = t.spec.ns
     return {
-        "namespace": p.ns,
+        "namespace": ns, "status": "ok" if t.state == "done" else t.state, "reason": t.reason,
         "messages_in": published, "messages_out": answered,
         "in_equals_out": published == answered > 0,
         "feedback_used": int(v.get("feedback_used", 0)), "feedback_total": int(v.get("feedback_total", 0)),
@@ -368,8 +244,8 @@ def _train_figures(p: _Pair, codes: dict[str, int]) -> dict[str, Any]:
         "vehicle_lag_max_s": v.get("lag_max_s"),
         "lag_median_s": v.get("lag_median_s"), "lag_p99_s": v.get("lag_p99_s"), "lag_max_s": v.get("lag_max_s"),
         "vehicle_node": v,
-        "cpu_us_per_message": p.cpu_us,
-        "exit_codes": {k.rsplit("/", 1)[1]: c for k, c in codes.items() if k.startswith(p.ns + "/")},
+        "cpu_us_per_message": t.cpu_us,
+        "exit_codes": {k.rsplit("/", 1)[1]: c for k, c in codes.items() if k.startswith(ns + "/")},
     }
 
 
@@ -447,6 +323,7 @@ def _overall(per_train: dict[str, Any]) -> dict[str, Any]:
     return {
         "trains": len(per_train),
         "all_correct": all(t["correct"] for t in per_train.values()),
+        "status": {k: t["status"] for k, t in per_train.items()},
         "all_in_equals_out": all(t["in_equals_out"] for t in per_train.values()),
         "all_offline_equal": all(t.get("offline_equal", True) for t in per_train.values()),
         "messages_in": sum(t["messages_in"] for t in per_train.values()),

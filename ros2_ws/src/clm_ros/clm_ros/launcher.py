@@ -6,19 +6,21 @@
    :mod:`clm_core.settings`, held exclusively among the clm runs of this
    machine) with discovery on loopback, so that a user can watch the run
    live with their own tools in that domain;
-2. starts the track–soil node (``clm_ros.track_node``) and, once this
-   process records, the vehicle simulator node (``clm_ros.vehicle_node``,
-   one train of ``duration``) as separate processes; the vehicle waits until
-   the track node is active and subscribed and the recorder subscribed, so
-   the bag and the figures start with the first message;
+2. runs one train through the run harness (:mod:`clm_ros.harness`: the demo
+   is a one-train fleet): the track–soil node (``clm_ros.track_node``) and
+   the vehicle simulator node (``clm_ros.vehicle_node``, one train of
+   ``duration``) as separate processes; the vehicle waits for its own track
+   node (active, subscribed, matched) and the recorder, then for the
+   harness's start signal, so the bag and the figures start with the first
+   message;
 3. records ``/wheel_loads``, ``/sleeper_response``, ``/wheel_rail_response``,
    the window's markers ``/track_markers`` and ``/diagnostics`` to a rosbag2
    bag (mcap) in the output directory (:class:`clm_ros.bag_tools.BagRecorder`:
    raw subscriptions). The track node also publishes the fixed series of
    sleepers 100, 200 and 300 on ``/monitored_sleepers``, for live views only
    (``config/foxglove_demo.json`` is a Foxglove layout of the demo);
-4. when the vehicle reports its train done (its ``/diagnostics``) and every
-   wheel-load message has been answered, stops both nodes (SIGINT; both
+4. when the vehicle's latched status says its train is done and every
+   wheel-load message is answered in the bag, stops both nodes (SIGINT; both
    must exit 0) and renders the plots (:func:`clm_core.io.plots.plot_demo`:
    sleeper soil forces over time, rail deflection and soil force along the
    track at the moment of the peak soil force, one panel per wheel of the
@@ -31,7 +33,9 @@ recorder's middleware received each ``sleeper_response``, its log time in
 the bag, minus the stamp of its wheel-load message), ``feedback_used`` and ``feedback_total`` (answers the vehicle used
 to close the loop, of the messages it published), the vehicle's own counts
 (``vehicle_node``), each process's CPU time per message
-(``cpu_us_per_message``), the exit codes, and the peaks.
+(``cpu_us_per_message``), the exit codes, and the peaks; ``status`` (``ok``,
+or the train's ``failed``/``timeout``) and ``reason``. An abnormal run still
+writes its summary and keeps its bag, then exits with an error.
 
 Users with a full ROS install get the same graph from
 ``ros2 launch clm_ros demo.launch.py``.
@@ -39,27 +43,22 @@ Users with a full ROS install get the same graph from
 
 from __future__ import annotations
 
-import gc
 import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from clm_core.errors import ClmError
 from clm_core.io.files import write_json
 from clm_core.io.report_index import write_index
 from clm_core.peaks import masked_max, peak_window
 from clm_core.progress import Progress
 from clm_ros.errors import ClmRosError
+from clm_ros.harness import TrainSpec, number, run_trains
 from clm_ros.launch_common import DEMO_MONITORED_SLEEPERS, LIVE_VIEWS
-from clm_ros.processes import hold_domain_id, proc_cpu_s, ros_args, ros_env, stop_processes
+from clm_ros.processes import hold_domain_id, ros_env
 from clm_ros.run_settings import RunSettings
-
-#: How often the recorder takes the messages that have arrived [s] (their log times are their reception times).
-POLL = 0.005
 
 #: What the demo records: the data topics, the window's markers (10 Hz) and /diagnostics. Not the monitored
 #: sleepers: one more 1-kHz topic for the recorder, and their series are in /sleeper_response (live views only).
@@ -79,6 +78,7 @@ def run_demo(
     hold_domain: bool = True,
     timeout: float = 300.0,
     overwrite: bool = False,
+    ready_timeout: float | None = None,
 ) -> dict[str, Any]:
     """Run the demo; return the summary (also written to ``out_dir/summary.json``).
 
@@ -88,198 +88,68 @@ def run_demo(
     (:func:`clm_ros.processes.hold_domain_id`; a caller that holds it already
     passes ``hold_domain=False``). An existing bag in ``out_dir`` is refused
     unless ``overwrite``. A progress bar shows the recorded wheel-load
-    messages on a terminal.
+    messages on a terminal. The demo is a one-train run of the run harness
+    (:func:`clm_ros.harness.run_trains`): ``ready_timeout`` bounds the wait
+    for the nodes to be ready (default ``timeout``), ``timeout`` the train
+    after its start [s].
 
     Raises
     ------
     ClmRosError
-        The domain is in use, a node failed or exited early or did not exit
-        cleanly, or the run did not finish within ``timeout`` s.
+        The domain is in use, a node failed, exited early or did not exit
+        cleanly, or the train was not ready or not done in time: the summary
+        (``status``, ``reason``) is written and the bag kept first.
     """
     run = RunSettings() if run is None else run
     bag = Path(out_dir) / "demo_bag"
     if bag.exists() and not overwrite:
         raise ClmRosError(f"{bag}: exists; choose another output directory or pass overwrite (--overwrite)")
     if not hold_domain:
-        return _run_demo(run.domain_id, out_dir, run, timeout)
+        return _run_demo(run.domain_id, Path(out_dir), run, timeout, ready_timeout)
     with hold_domain_id(run.domain_id) as dom:
-        return _run_demo(dom, out_dir, run, timeout)
+        return _run_demo(dom, Path(out_dir), run, timeout, ready_timeout)
 
 
-class _Watch:
-    """What the launcher sees of the run: the vehicle's and the track node's /diagnostics, CPU samples."""
-
-    def __init__(self) -> None:
-        self.vehicle: dict[str, str] = {}
-        self.vehicle_final: dict[str, str] = {}
-        self.track: dict[str, str] = {}
-        self.track_count = 0
-        self.cpu0: tuple[float, float | None, float | None, int] | None = None
-
-    def on_diagnostics(self, msg: Any) -> None:
-        for status in msg.status:
-            values = {kv.key: kv.value for kv in status.values}
-            if "vehicle simulator" in status.name:
-                self.vehicle = values
-                if values.get("final_train"):
-                    self.vehicle_final = values
-            elif "track-soil" in status.name:
-                self.track = values
-                self.track_count += 1
-
-
-def _run_demo(dom: int, out_dir: str | Path, run: RunSettings, timeout: float) -> dict[str, Any]:
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.context import Context
-    from rclpy.experimental import EventsExecutor
-
-    from clm_ros.bag_tools import BagRecorder
-
-    out = Path(out_dir)
-    bag = out / "demo_bag"
-    if bag.exists():
-        import shutil
-
-        shutil.rmtree(bag)
-    out.mkdir(parents=True, exist_ok=True)
-    env = ros_env(dom)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    track_params = {**run.track_parameters(), "monitored_sleepers": DEMO_MONITORED_SLEEPERS}
-    # one train, then the vehicle idles until stopped here; it waits for the track node and this recorder
-    vehicle_params = run.vehicle_parameters(wait_for_subscribers=2)
-    logs = {name: open(out / f"{name}.log", "w") for name in ("track_node", "vehicle_node")}
-    procs: dict[str, subprocess.Popen[bytes]] = {}
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=dom)
-    summary: dict[str, Any] = {}
-    watch = _Watch()
+def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float, ready_timeout: float | None) -> dict[str, Any]:
+    spec = TrainSpec(
+        "demo", "", {**run.track_parameters(), "monitored_sleepers": DEMO_MONITORED_SLEEPERS},
+        # one train, then the vehicle idles until stopped here; it waits for its track node and this recorder
+        run.vehicle_parameters(wait_for_subscribers=2))
     bar = Progress(run.messages, "clm demo", unit="msg")
-    nodes: list[Any] = []
     try:
-        procs["track_node"] = subprocess.Popen(
-            [sys.executable, "-m", "clm_ros.track_node", *ros_args(track_params)],
-            env=env, stdout=logs["track_node"], stderr=subprocess.STDOUT,
-        )
-        # the recorder (~3 messages per ms) takes its messages every POLL s with their reception times, no
-        # executor wake-up per message; the diagnostics (a few per second) come through the executor
-        node = rclpy.create_node("clm_demo_recorder", context=ctx)
-        watcher = rclpy.create_node("clm_demo_watch", context=ctx)
-        nodes += [node, watcher]
-        ex = EventsExecutor(context=ctx)
-        ex.add_node(watcher)
-
-        def spin_for(seconds: float) -> None:
-            end = time.monotonic() + seconds
-            while (left := end - time.monotonic()) > 0:
-                ex.spin_once(timeout_sec=min(left, POLL))
-                rec.poll()
-
-        def check(name: str) -> None:
-            if procs[name].poll() is not None:
-                raise ClmRosError(f"{name.replace('_', ' ')} exited early with code {procs[name].returncode}; "
-                                  f"see {out}/{name}.log")
-
-        rec = BagRecorder(node, bag, TOPICS, storage=run.storage, polled=True)
-        watcher.create_subscription(DiagnosticArray, "/diagnostics", watch.on_diagnostics, 50)
-        # the answers reach the bag from the first one only if the recorder's readers have matched the track node's
-        # publishers before the train starts (volatile topics: nothing is kept for a late reader); the vehicle
-        # waits for the track node and for this recorder's wheel_loads reader itself
-        t_up = time.monotonic()
-        while not rec.matched(("/sleeper_response", "/wheel_rail_response")):
-            spin_for(0.02)
-            check("track_node")
-            if time.monotonic() - t_up > timeout:
-                raise ClmRosError(f"the track node's answers not discovered after {timeout:g} s; see "
-                                  f"{out}/track_node.log")
-        gc.collect()
-        gc.freeze()  # no 0.1-s full collection of the start-up heap while recording (clm_ros.node_main)
-        procs["vehicle_node"] = subprocess.Popen(
-            [sys.executable, "-m", "clm_ros.vehicle_node", *ros_args(vehicle_params)],
-            env=env, stdout=logs["vehicle_node"], stderr=subprocess.STDOUT,
-        )
-        pids = {n: p.pid for n, p in procs.items()}
-        t0 = time.monotonic()
-        while not watch.vehicle_final:
-            spin_for(0.05)
-            n_in = rec.counts["/wheel_loads"]
-            bar.update_to(n_in)
-            if n_in and watch.cpu0 is None:  # the train started: CPU from here on
-                watch.cpu0 = (time.process_time(), proc_cpu_s(pids["track_node"]),
-                              proc_cpu_s(pids["vehicle_node"]), n_in)
-            check("track_node")
-            check("vehicle_node")
-            if time.monotonic() - t0 > timeout:
-                raise ClmRosError(f"the vehicle's train not done after {timeout:g} s; see {out}/vehicle_node.log")
-        bar.close()
-        # every wheel-load message answered (or rejected and counted), then two more track diagnostics
-        t1 = time.monotonic()
-        while rec.counts["/sleeper_response"] < rec.counts["/wheel_loads"] and time.monotonic() - t1 < 60:
-            spin_for(0.05)
-        cpu1 = (time.process_time(), proc_cpu_s(pids["track_node"]), proc_cpu_s(pids["vehicle_node"]),
-                rec.counts["/wheel_loads"])
-        n_diag = watch.track_count
-        t2 = time.monotonic()
-        while watch.track_count < n_diag + 2 and time.monotonic() - t2 < 5:
-            spin_for(0.05)
-        summary["message_counts"] = rec.close()
-        summary["cpu_us_per_message"] = _cpu_per_message(watch.cpu0, cpu1)
+        r = run_trains(out, [spec], domain_id=dom, env=ros_env(dom), topics=TOPICS, bag_name="demo_bag",
+                       storage=run.storage, timeout=timeout, ready_timeout=ready_timeout,
+                       log_name=lambda _s, kind: kind,
+                       progress=bar.update_to)
     finally:
         bar.close()
-        for n in nodes:
-            n.destroy_node()
-        codes = _stop({k: procs[k] for k in ("vehicle_node", "track_node") if k in procs})
-        for f in logs.values():
-            f.close()
-        rclpy.try_shutdown(context=ctx)
-    summary.update(analyse_bag(bag, out))
-    v = watch.vehicle_final
+    train = r.trains[0]
+    summary: dict[str, Any] = {"status": "ok" if r.ok else train.state, "reason": r.reasons(),
+                               "message_counts": r.message_counts}
+    n = r.message_counts.get("/wheel_loads", 0) - train.n0
+    cpu = {**train.cpu_us, "recorder": round(1e6 * r.recorder_cpu_s / n, 1) if n > 0 else None, "messages": n}
+    summary["cpu_us_per_message"] = cpu if n > 0 else {}
+    try:
+        summary.update(analyse_bag(out / "demo_bag", out))
+    except (ClmRosError, ClmError) as exc:  # an abnormal run: nothing (or no bag) to plot; the summary says why
+        summary["reason"] = "; ".join(x for x in (summary["reason"], str(exc)) if x)
+        summary["status"] = "failed" if summary["status"] == "ok" else summary["status"]
+    v = train.final
     summary.update({
         "feedback_used": int(v.get("train.feedback_used", 0)),
         "feedback_total": int(v.get("train.feedback_total", 0)),
-        "vehicle_node": {k.removeprefix("train."): _number(x) for k, x in v.items() if k.startswith("train.")},
-        "exit_codes": codes,
+        "vehicle_node": {k.removeprefix("train."): number(x) for k, x in v.items() if k.startswith("train.")},
+        "exit_codes": r.exit_codes,
         "scheduling": {"vehicle_node": v.get("scheduling", "unknown"),
-                       "track_node": watch.track.get("scheduling", "unknown")},
+                       "track_node": summary.get("track_node_diagnostics", {}).get("scheduling", "unknown")},
         "loadavg": list(os.getloadavg()),
     })
-    summary.update({**run.summary(), "bag": str(bag), "ros_domain_id": dom})
+    summary.update({**run.summary(), "bag": str(out / "demo_bag"), "ros_domain_id": dom})
     write_json(out / "summary.json", summary)
     write_index(out, title=f"clm demo: {run.vehicle} at {run.speed:g} m/s on {run.track} / {run.soil} ({run.model})")
-    bad = {k: c for k, c in codes.items() if c != 0}
-    if bad:  # the run is recorded and plotted; the exit is still an error
-        raise ClmRosError(f"node(s) did not exit cleanly on SIGINT: {bad}; see the logs in {out}/")
+    if summary["status"] != "ok":  # the run is recorded (and plotted where it could be); the exit is an error
+        raise ClmRosError(f"{summary['reason']}; the summary and the bag are in {out}/")
     return summary
-
-
-def _number(text: str) -> float | int | str:
-    try:
-        return int(text)
-    except ValueError:
-        try:
-            return float(text)
-        except ValueError:
-            return text
-
-
-def _stop(procs: dict[str, subprocess.Popen[bytes]]) -> dict[str, int]:
-    """SIGINT the nodes (the vehicle first); their exit codes."""
-    stop_processes(procs.values(), timeout=15)
-    return {k: int(p.returncode) for k, p in procs.items()}
-
-
-def _cpu_per_message(a: tuple[float, float | None, float | None, int] | None,
-                     b: tuple[float, float | None, float | None, int]) -> dict[str, float | None]:
-    """CPU time per wheel-load message of the recorder (this process), the track and the vehicle node [us]."""
-    if a is None or b[3] <= a[3]:
-        return {}
-    n = b[3] - a[3]
-
-    def per(x: float | None, y: float | None) -> float | None:
-        return None if x is None or y is None else 1e6 * (y - x) / n
-
-    return {"recorder": per(a[0], b[0]), "track_node": per(a[1], b[1]), "vehicle_node": per(a[2], b[2]),
-            "messages": n}
 
 
 def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:

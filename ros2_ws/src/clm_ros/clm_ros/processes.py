@@ -14,6 +14,7 @@ import random
 import signal
 import subprocess
 import tempfile
+import time
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -130,14 +131,23 @@ def ros_args(params: Mapping[str, Any]) -> list[str]:
 
 
 def stop_processes(procs: Iterable[subprocess.Popen[Any]], timeout: float = 15.0) -> None:
-    """SIGINT the processes still running, wait up to ``timeout`` s each, kill what is left."""
+    """SIGINT the processes still running; wait up to ``timeout`` s for all of them together, then SIGTERM what is
+    left and wait up to a quarter of ``timeout`` more, then kill what is still left."""
     procs = list(procs)
     for p in procs:
         if p.poll() is None:
             p.send_signal(signal.SIGINT)
+    for sig, wait in ((signal.SIGTERM, timeout), (signal.SIGKILL, timeout / 4)):
+        deadline = time.monotonic() + wait
+        for p in procs:
+            try:
+                p.wait(timeout=max(deadline - time.monotonic(), 0.01))
+            except subprocess.TimeoutExpired:
+                pass
+        left = [p for p in procs if p.poll() is None]
+        if not left:
+            return
+        for p in left:
+            p.send_signal(sig)
     for p in procs:
-        try:
-            p.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+        p.wait()

@@ -87,6 +87,7 @@ from clm_ros.diagnostics import (
     lag_level,
     lag_values,
 )
+from clm_ros.latched import TRACK_STATUS, follow, matched_readers
 from clm_ros.node_main import StopSignals, run_node
 from clm_ros.parameters import declare_model_parameters, declare_settings
 from clm_ros.realtime import NOT_APPLIED, Scheduling
@@ -173,6 +174,9 @@ class TrackNode(LifecycleNode):
         # one /diagnostics publisher for the node's whole life (never one per configure)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(0.25, self._housekeeping, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        follow(self, TRACK_STATUS, "track-soil model", lambda: (0, self._state, {  # clm_ros.latched: readiness
+            "state": self._state, "wheel_load_publishers_matched": self._matched_publishers,
+            **matched_readers(sleeper_response=self._pub_s, wheel_rail_response=self._pub_w)}))
         self._diag = DiagnosticsThread(self._publish_diagnostics, float(self.get_parameter("diagnostics_period").value),
                                        lambda exc: self._log("warning", f"/diagnostics not published: {exc}"))
         if self.get_parameter("autostart").value:

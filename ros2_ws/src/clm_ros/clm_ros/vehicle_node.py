@@ -10,12 +10,11 @@ can leave running:
   with its reason and the node stays unconfigured;
 - activate: run ``trains`` trains (0: until deactivated), one after another
   (``train_pause`` between them) or on a ``headway`` from start to start.
-  Each train waits until the track node is active and subscribed (its
-  ``wheel_loads`` subscription, owned by the node named ``track_node``, and
-  its ``wheel_rail_response`` publisher, both matched, plus
-  ``wait_for_subscribers`` matched readers of ``wheel_loads`` in all, and
-  the track node's own /diagnostics saying its subscription matched this
-  node's publisher); only
+  Each train waits for its own track node, active and subscribed
+  (:mod:`clm_ros.readiness`: its endpoints in this namespace, every known
+  reader matched, its latched ``track_status`` saying it matched this node),
+  plus ``wait_for_subscribers`` matched readers (and, with ``start_signal``,
+  the supervisor's start time); only
   then its clock starts, so its first second is like any other. It publishes
   ``clm_msgs/WheelLoads`` on ``wheel_loads`` at ``rate`` Hz for ``duration``
   simulated seconds, each stamped with its due time (ROS time; with
@@ -57,10 +56,8 @@ from __future__ import annotations
 import copy
 import sys
 import time
-from array import array
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -74,6 +71,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Int64
 
 from clm_core.errors import ClmError
 from clm_core.io.errors import MessageError
@@ -85,9 +83,12 @@ from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
 from clm_ros.bag_tools import take_raw
 from clm_ros.diagnostics import publish_status
+from clm_ros.latched import LATCHED_QOS, TRACK_STATUS, VEHICLE_STATUS, LatchedStatus
 from clm_ros.node_main import freeze_heap, run_node
 from clm_ros.parameters import declare_settings
+from clm_ros.readiness import START_AT, START_SIGNAL, all_matched, owned
 from clm_ros.realtime import NOT_APPLIED, Scheduling
+from clm_ros.vehicle_counts import Counts
 
 NODE_NAME = "clm_vehicle_node"
 
@@ -105,49 +106,11 @@ NODE_SETTINGS = ("trains", "headway", "train_pause", "track_node", "answer_timeo
 DATA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000, reliability=ReliabilityPolicy.RELIABLE)
 
 #: How long a train waits, once the track node is on the graph and matched, for the track node's own word that
-#: its subscription has matched this node's publisher (``wheel_load_publishers_matched`` in its /diagnostics)
-#: before it starts without it (a track node that publishes no such status: not a clm track node) [ns].
+#: its subscription has matched this node's publisher, when the track node has no latched status
+#: (``track_status``, :mod:`clm_ros.latched`): not a clm track node; a clm track node's word is always awaited [ns].
 HANDSHAKE_TIMEOUT_NS = 5 * NS
 #: Answers older than this are forgotten (a later answer counts as unmatched) [s].
 FORGET_AFTER = 30.0
-
-
-@dataclass
-class Counts:
-    """What happened in one train (or, summed, in the node's life)."""
-
-    published: int = 0
-    answered: int = 0
-    used: int = 0
-    stale: int = 0
-    after_end: int = 0
-    unmatched: int = 0
-    malformed: int = 0
-    late: int = 0
-    publish_failed: int = 0
-    contact_lost_steps: int = 0
-    model_cpu_s: float = 0.0
-    model_messages: int = 0
-    lags: array[float] = field(default_factory=lambda: array("d"))
-
-    def __add__(self, other: Counts) -> Counts:
-        out = Counts()
-        for f in fields(self):
-            if f.name != "lags":
-                setattr(out, f.name, getattr(self, f.name) + getattr(other, f.name))
-        return out
-
-    def lag_figures(self) -> dict[str, float]:
-        """Median, 99th percentile and maximum of the answer lags [s] (NaN without answers)."""
-        if not self.lags:
-            return {"lag_median_s": float("nan"), "lag_p99_s": float("nan"), "lag_max_s": float("nan")}
-        a = np.frombuffer(self.lags, dtype=np.float64)
-        return {"lag_median_s": float(np.median(a)), "lag_p99_s": float(np.percentile(a, 99)),
-                "lag_max_s": float(a.max())}
-
-    def model_us(self) -> float:
-        """CPU time of the vehicle model per message [us]."""
-        return 1e6 * self.model_cpu_s / self.model_messages if self.model_messages else float("nan")
 
 
 class VehicleNode(LifecycleNode):
@@ -171,6 +134,7 @@ class VehicleNode(LifecycleNode):
         declare_settings(self, RUN_SETTINGS, read_only=True)
         declare_settings(self, NODE_SETTINGS, read_only=True)
         declare_settings(self, ("autostart", "realtime_priority"), read_only=True)
+        declare_settings(self, (START_SIGNAL,), read_only=True)
         #: SCHED_FIFO priority asked of clm_ros.node_main.run_node, which sets ``scheduling`` to the outcome
         self.realtime_priority = int(self.p("realtime_priority"))
         self.scheduling: Scheduling = NOT_APPLIED
@@ -189,6 +153,12 @@ class VehicleNode(LifecycleNode):
         self._diag_mark = (0, 0)  # (published, too late) of the train at the last diagnostics
         # one /diagnostics publisher and timer for the node's life, in every state
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # the control-plane facts (ready, running, train done with its counts) as a latched status (clm_ros.latched)
+        self._latched = LatchedStatus(self, VEHICLE_STATUS, "vehicle simulator")
+        self._final_values: dict[str, Any] = {}  # the last finished train's figures, as reported at its end
+        self._train_times = (0, 0)  # system clock [ns] of the current / last train's start and end
+        self._start_sub: Any = None
+        self._start_at: int | None = None  # the supervisor's start time [ns, system clock] (start_signal)
         self._diag_timer = self.create_timer(float(self.p("diagnostics_period")), self._publish_diagnostics)
         #: stamp [ns] -> (vehicle step, due time [monotonic ns]) of the messages not answered yet
         self.sent: dict[int, tuple[int, int]] = {}
@@ -243,8 +213,10 @@ class VehicleNode(LifecycleNode):
                                                context=self.context)
         self._sub = self._answers_node.create_subscription(WheelRailResponse, "wheel_rail_response", _ignore,
                                                            DATA_QOS, qos_overriding_options=qos, raw=True)
-        # the track node's /diagnostics, taken by the node itself while a train waits (see _track_subscribed)
-        self._diag_sub = self._answers_node.create_subscription(DiagnosticArray, "/diagnostics", _ignore, 50)
+        # the track node's latched status, taken by the node itself while a train waits (see _track_subscribed)
+        self._diag_sub = self._answers_node.create_subscription(DiagnosticArray, TRACK_STATUS, _ignore, LATCHED_QOS)
+        if self.p("start_signal"):
+            self._start_sub = self._answers_node.create_subscription(Int64, START_AT, _ignore, LATCHED_QOS)
         self._set_state("configured", DiagnosticStatus.OK)
         freeze_heap()  # the run's objects live until cleanup: no full collection of them during a train
         self.get_logger().info(
@@ -318,7 +290,7 @@ class VehicleNode(LifecycleNode):
                 self.destroy_lifecycle_publisher(p)
         if self._answers_node is not None:
             self._answers_node.destroy_node()
-        self._pub = self._clock_pub = self._sub = self._diag_sub = self._answers_node = None
+        self._pub = self._clock_pub = self._sub = self._diag_sub = self._start_sub = self._answers_node = None
 
     def _halt(self, state: str) -> None:
         """Stop the schedule (the train that runs is reported as stopped)."""
@@ -334,6 +306,19 @@ class VehicleNode(LifecycleNode):
 
     def _set_state(self, text: str, level: int) -> None:
         self.state_text, self.level = text, level
+        self._latch()
+
+    def _latch(self) -> None:
+        """Publish the control-plane state (phase, train, its start and end, the last train's figures) latched."""
+        latched = getattr(self, "_latched", None)
+        if latched is None:  # (a state set before the publisher exists)
+            return
+        values = {"phase": getattr(self, "_phase", "idle"), "state": self.state_text,
+                  "train": getattr(self, "_number", 0), "trains_done": getattr(self, "trains_done", 0),
+                  "train.start_ns": self._train_times[0], "train.end_ns": self._train_times[1],
+                  **self._final_values}
+        latched.update(DiagnosticStatus.ERROR if getattr(self, "_model_error", "") else self.level, self.state_text,
+                       values)
 
     # ------------------------------------------------------------------ the schedule
 
@@ -388,8 +373,9 @@ class VehicleNode(LifecycleNode):
             return True
         readers = self.get_subscriptions_info_by_topic(pub.topic_name)
         writers = self.get_publishers_info_by_topic(sub.topic_name)
-        if not (sub.get_publisher_count() >= 1 and any(r.node_name == name for r in readers)
-                and any(w.node_name == name for w in writers)):
+        ns = self.get_namespace()
+        if not (sub.get_publisher_count() >= 1 and any(owned(r, name, ns) for r in readers)
+                and any(owned(w, name, ns) for w in writers) and all_matched(pub, readers)):
             # gone, or not there yet: ask again when back, and forget what a former track node said
             self._graph_ready_since, self._handshake = 0, None
             for _ in take_raw(self._diag_sub):
@@ -398,13 +384,10 @@ class VehicleNode(LifecycleNode):
         return self._track_subscribed(name)
 
     def _track_subscribed(self, name: str) -> bool:
-        """The track node says (``wheel_load_publishers_matched`` >= 1 in its /diagnostics) that its subscription
-        has matched this node's publisher.
-
-        Discovery is two-sided: this node's writer may have matched the track node's reader before that reader
-        has matched the writer, and wheel loads published in between may never reach a volatile reader (the
-        train's first messages unanswered). A track node whose status carries no such count, or that publishes
-        no status within :data:`HANDSHAKE_TIMEOUT_NS`, is taken at its graph entry.
+        """The track node says (``wheel_load_publishers_matched`` >= 1 in its latched ``track_status``) that its
+        subscription has matched this node's publisher (discovery is two-sided: wheel loads published before
+        it may never reach a volatile reader). A track node without that status (not a clm one) is taken at its
+        graph entry after :data:`HANDSHAKE_TIMEOUT_NS`.
         """
         status = f"{self.get_namespace().rstrip('/')}/{name}: "
         for raw, _ in take_raw(self._diag_sub):
@@ -417,10 +400,28 @@ class VehicleNode(LifecycleNode):
             self._graph_ready_since = now
         if self._handshake is not None:
             return self._handshake != 0
+        if self._diag_sub.get_publisher_count():  # a clm track node: its latched word comes, however late
+            return False
         return now - self._graph_ready_since > HANDSHAKE_TIMEOUT_NS
 
+    def _start_due(self) -> bool:
+        """``start_signal``: the first train of an activation starts at the supervisor's start time (latched
+        ``start_at``); the node says once that it is ready and waits for it."""
+        if self._start_sub is None or self._number > self._first_of_activation:
+            return True
+        for raw, _ in take_raw(self._start_sub):
+            self._start_at = int(deserialize_message(raw, Int64).data)
+        if self._start_at is None:
+            text = f"train {self._number + 1}: ready, waiting for the start signal"
+            if self.state_text != text:
+                self._phase = "ready"
+                self._set_state(text, self.level)
+                self._phase = "wait"
+            return False
+        return time.time_ns() >= self._start_at
+
     def _serve_wait(self) -> float:
-        if self._track_ready():
+        if self._track_ready() and self._start_due():
             if self._warned:
                 self.get_logger().info(f"{self.p('track_node') or 'a subscriber'} is there: train "
                                        f"{self._number + 1} starts")
@@ -450,6 +451,8 @@ class VehicleNode(LifecycleNode):
         self.vehicle = copy.deepcopy(self._template)
         self._recent_lags.clear()
         self._silent = False
+        self._train_times = (time.time_ns(), 0)
+        self._phase = "run"
         self._set_state(f"train {self._number}: running", DiagnosticStatus.OK)
         self._started = time.monotonic_ns()
         self._base_ns = self._sim_ns if self._clock_pub is not None else self.get_clock().now().nanoseconds
@@ -530,6 +533,7 @@ class VehicleNode(LifecycleNode):
             c.contact_lost_steps = self.vehicle.contact_lost_steps
         self.sent.clear()
         self._report(self._number, c, stopped)
+        self._train_times = (self._train_times[0], time.time_ns())
         if stopped:
             return
         self.trains_done += 1
@@ -645,6 +649,9 @@ class VehicleNode(LifecycleNode):
         if final:
             values["final_train"] = final
             values.update({f"train.{k}": f"{v:.6f}" for k, v in c.lag_figures().items()})
+            self._final_values = {k: v for k, v in values.items() if k.startswith("train.") or k in (
+                "final_train", "scheduling")}
+            self._latch()
         level, message = (DiagnosticStatus.ERROR if self._model_error else self.level), self.state_text
         # the closed loop is open in effect when answers come too late: more than 1 % of the messages published
         # since the last diagnostics

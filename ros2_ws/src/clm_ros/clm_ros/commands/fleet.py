@@ -33,7 +33,13 @@ def register(sub: Any) -> None:
     p.add_argument("--pair-process", action="store_true",
                    help="each train's vehicle and track node in one process on one executor (default: two "
                    "processes per train)")
-    p.add_argument("--timeout", type=float, default=600.0, help="longest run [s] (default 600)")
+    p.add_argument("--stagger", type=float, default=0.0, metavar="S",
+                   help="train i starts i*S s after the first (default 0: all trains start together once ready)")
+    p.add_argument("--join-domain", dest="hold_domain", action="store_false",
+                   help="do not hold the ROS domain exclusively: join the graph of another clm fleet in that domain "
+                   "(e.g. one with another --first-index, on this machine or another host)")
+    p.add_argument("--timeout", type=float, default=600.0,
+                   help="longest time of the trains after their start [s] (default 600)")
     add_overwrite(p)
 
 
@@ -65,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
             args.out, RunSettings.from_args(args), trains=args.fleet_trains, first_index=args.fleet_first_index,
             record=record, verify=args.verify and record, discovery_range=args.discovery_range,
             static_peers=args.static_peers, timeout=args.timeout, overwrite=args.overwrite,
-            pair_process=args.pair_process,
+            pair_process=args.pair_process, stagger=args.stagger, hold_domain=args.hold_domain,
         )
     except ClmRosError as exc:
         print(f"clm fleet: error: {exc}", file=sys.stderr)
@@ -80,5 +86,6 @@ def run(args: argparse.Namespace) -> int:
               f"({used:.1f} %); {check}")
     o = s["overall"]
     print(f"fleet: worst lag p99 {quantity(o['worst_lag_p99_s'], 's')}, max {quantity(o['worst_lag_max_s'], 's')}; "
-          f"all correct: {o['all_correct']}; summary.json in {args.out}/")
+          f"all correct: {o['all_correct']}; {o['max_running_at_once']} train(s) ran at once; summary.json in "
+          f"{args.out}/")
     return 0
