@@ -191,7 +191,6 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
         reader.close()
     if not s_t:
         raise ClmRosError(f"bag {bag}: no sleeper responses recorded")
-    lags = np.array([(recv[t] - t) / 1e9 for t in s_t])
     t0 = wheel_t[0]
     # sleeper soil forces over time on a global grid of sleepers
     gmin = min(int(i.min()) for i in s_idx)
@@ -216,7 +215,9 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     Wm = np.full((len(wheel_F), nw), np.nan)
     for k, f in enumerate(wheel_F):
         Wm[k, : len(f)] = f
-    from clm_core.io.plots import plot_demo
+    from clm_core.io.plots import DEMO_FIGURES, plot_demo
+    from clm_core.io.timebase import lag_figures
+    from clm_core.peaks import sleeper_envelope, wheel_load_statistics
 
     plot_demo(
         out,
@@ -229,6 +230,8 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
         profile_force=np.asarray(s_F[peak_k], float),
         wheel_t=(np.array(wheel_t) - t0) / 1e9,
         wheel_load=Wm,
+        static_wheel_load=Wm[0],  # the vehicle's first message: the train at rest on the track (static loads)
+        admitted_sleepers=passed,
     )
     front = np.array([np.nanmax(x) if len(x) else np.nan for x in wheel_x])
     admitted = np.repeat(window.instants(front)[:, None], nw, axis=1)
@@ -243,9 +246,7 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
                               "max_rail_deflection_m": float(max(np.max(w) for w in s_w)),
                               "peak_wheel_load_N": float(Fw.max())}
     return {
-        "lag_median_s": float(np.median(lags)),
-        "lag_p99_s": float(np.percentile(lags, 99)),
-        "lag_max_s": float(np.max(lags)),
+        **lag_figures(s_t, received_ns=[recv[t] for t in s_t]).named(),
         "responses": len(s_t),
         "wheel_load_messages": len(wheel_t),
         "peak_sleeper_soil_force_N": peak_force,
@@ -254,6 +255,8 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
         "peak_wheel_load_N": peak_wheel,
         "peak_exclusion": exclusion,
         "rms_wheel_load_N": float(np.sqrt(np.mean(Fw**2))),
+        **wheel_load_statistics(Wm, Wm[0], admitted),
+        **sleeper_envelope(np.full(len(s_t), gmin), grid).describe(passed),
         "track_node_diagnostics": diag,
-        "plots": ["sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png"],
+        "plots": list(DEMO_FIGURES),
     }
