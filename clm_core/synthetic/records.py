@@ -258,7 +258,7 @@ def simulate_impact(
     pulse: Literal["half-sine", "eq1"] = "half-sine",
     pulse_duration: float = 0.003,
     amplitude: float = 10e3,
-    oversample: int = 10,
+    oversample: int = 40,
 ) -> SyntheticRecord:
     """Noise-free soil impact test on a CLM chain (Eq. 7–8) of ``n_areas`` areas.
 
@@ -287,7 +287,12 @@ def simulate_impact(
     amplitude : float
         Peak force [N].
     oversample : int
-        Simulation steps per output sample.
+        Simulation steps per output sample. The Newmark average-acceleration
+        rule is the bilinear transform: it evaluates the chain at the warped
+        frequency (2 / dt) tan(w dt / 2), w (1 + (w dt)^2 / 12), which reads
+        as a larger m_f: +0.19 % at 1 kHz with 10 steps per sample, +0.012 %
+        with 40 (the default; issue 24's bound on the noise-free bias is
+        0.02 %).
     """
     soil = soil or load_soil("mevergnies")
     n = n_areas // 2
