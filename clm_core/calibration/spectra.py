@@ -18,9 +18,11 @@ Sec. 3.9–3.10):
 4. H1 = sum_k X_k F_k* / sum_k |F_k|^2 over the hits; velocity and
    acceleration become displacement receptances by dividing by s and s^2
    (from rest: V(s) = s X(s)).
-5. Noise: the standard deviation of each channel before the first hit gives
-   the variance of every spectral line, var H = (var X + |H|^2 var F) /
-   sum |F|^2, which weights the statistical (``weighted``) norm.
+5. Noise: the record of each channel before the first hit gives its noise
+   spectrum (an autoregressive model, :mod:`clm_core.calibration.noise`;
+   white noise stays white) and so the variance of every spectral line,
+   var H = (var X(f) + |H|^2 var F(f)) / sum |F|^2, which weights the
+   statistical (``weighted``) norm and gives the intervals.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import numpy as np
 from clm_core.arrays import Array, CArray
 from clm_core.calibration.channels import ChannelSpec
 from clm_core.calibration.errors import CalibrationError
+from clm_core.calibration.noise import NoiseSpectrum, fit_noise, windowed_cov
 from clm_core.calibration.signals import Recording
 
 
@@ -62,6 +65,10 @@ class WindowSpec:
         ``force_margin`` says: the anti-alias filter's ringing (the responses
         keep theirs) must be inside the window. 4 ms at 1 kHz (4 samples)
         cut it off and biased the damping by -0.1 to -0.2 % (issue 24).
+    noise_order : int
+        Highest order of the autoregressive noise model fitted to the record
+        before the hit (:mod:`clm_core.calibration.noise`; BIC chooses the
+        order, white noise keeps 0); 0: white noise, as before issue 24.
     max_segment : float or None
         Upper bound of the segment length [s] (None: up to the next hit or
         the record end).
@@ -76,6 +83,7 @@ class WindowSpec:
     hit_separation: float = 0.05
     force_margin: float = 0.004
     force_tail: int = 20
+    noise_order: int = 8
     max_segment: float | None = None
     snr_window: float = 0.1
 
@@ -143,6 +151,15 @@ class TransferData:
     force_tail : float
         Force window kept after the end of the pulse, mean over the hits
         [s] (:func:`force_window`; the taper follows it).
+    noise_shape : (n_f, n_ch) array or None
+        Each response channel's noise spectrum over its variance at the
+        lines, P(f) / r(0) (:mod:`clm_core.calibration.noise`, fitted to the
+        record before the hit); None when every channel's noise is white.
+        Scales the sensor-noise variance of each line (and the covariance of
+        lines k, l by the square root of the product).
+    noise_models, force_noise_model : NoiseSpectrum
+        The fitted noise models (response channels in column order; force);
+        the force's enters ``force_cov`` exactly (:func:`~clm_core.calibration.noise.windowed_cov`).
     """
 
     frequency: Array
@@ -165,6 +182,9 @@ class TransferData:
     line_pcov: CArray | None = None
     force_pcov: CArray | None = None
     force_tail: float = math.nan
+    noise_shape: Array | None = None
+    noise_models: tuple[NoiseSpectrum, ...] = ()
+    force_noise_model: NoiseSpectrum | None = None
 
     @property
     def s(self) -> CArray:
@@ -182,7 +202,11 @@ class TransferData:
             return None
         p = {"displacement": 0, "velocity": 1, "acceleration": 2}[self.channels[j].quantity]
         conv = self.s**p
-        return np.asarray(self.noise_var[j] * self.line_cov / np.outer(conv, np.conj(conv)))
+        cov = self.noise_var[j] * self.line_cov / np.outer(conv, np.conj(conv))
+        if self.noise_shape is not None:
+            g = np.sqrt(self.noise_shape[:, j])
+            cov = cov * np.outer(g, g)
+        return np.asarray(cov)
 
     def h_pcov(self, j: int) -> CArray | None:
         """Pseudo-covariance E[dH_k dH_l] of H[:, j] due to its own sensor noise [(m/N)^2].
@@ -194,7 +218,11 @@ class TransferData:
             return None
         p = {"displacement": 0, "velocity": 1, "acceleration": 2}[self.channels[j].quantity]
         conv = self.s**p
-        return np.asarray(self.noise_var[j] * self.line_pcov / np.outer(conv, conv))
+        pcov = self.noise_var[j] * self.line_pcov / np.outer(conv, conv)
+        if self.noise_shape is not None:
+            g = np.sqrt(self.noise_shape[:, j])
+            pcov = pcov * np.outer(g, g)
+        return np.asarray(pcov)
 
 
 def force_window(
@@ -365,10 +393,14 @@ def transfer_functions(
     # noise before the first hit
     noise_x: Array | None = None
     noise_f: float | None = None
+    f_model: NoiseSpectrum | None = None
+    x_models: list[NoiseSpectrum] = []
     if starts[0] >= 32:
         pre_x = rec.responses[: starts[0]]
         noise_x = np.std(pre_x - pre_x.mean(axis=0), axis=0)
         noise_f = float(np.std(f[: starts[0]] - f[: starts[0]].mean()))
+        f_model = fit_noise(f[: starts[0]], spec.noise_order)
+        x_models = [fit_noise(pre_x[:, j], spec.noise_order) for j in range(pre_x.shape[1])]
     else:
         warnings.append(
             f"no noise estimate: only {starts[0]} samples before the first hit (rule: >= 32); the 'weighted' norm "
@@ -434,6 +466,8 @@ def transfer_functions(
     fsnr = float("nan")
     sum_w2 = float(np.sum(w_exp**2))
     line_cov = None
+    shape: Array | None = None
+    coloured = False
     fcov = None
     line_pcov = None
     fpcov = None
@@ -449,12 +483,15 @@ def transfer_functions(
         fcov = np.zeros((kb.size, kb.size), dtype=complex)
         fpcov = np.zeros((kb.size, kb.size), dtype=complex)
         for Fk, wk in zip(F_hits, wf_hits):
-            Rw = np.fft.fft(wk**2)
-            fcov += Rw[dk] * np.outer(np.conj(Fk), Fk)
-            fpcov += Rw[sk] * np.outer(np.conj(Fk), np.conj(Fk))
-        fcov *= noise_f**2 / SS
-        fpcov *= noise_f**2 / SS
-        var_h = noise_x[None, :] ** 2 * np.real(np.diag(line_cov))[:, None] + np.abs(H) ** 2 * np.real(
+            assert f_model is not None
+            Gc, Gp = windowed_cov(f_model, wk, kb, L)  # E[N_k conj N_l], E[N_k N_l] of the windowed force noise
+            fcov += Gc * np.outer(np.conj(Fk), Fk)
+            fpcov += Gp * np.outer(np.conj(Fk), np.conj(Fk))
+        fcov /= SS
+        fpcov /= SS
+        shape = np.column_stack([m.shape(fr, fs) for m in x_models])
+        coloured = any(m.order > 0 for m in x_models)
+        var_h = noise_x[None, :] ** 2 * np.real(np.diag(line_cov))[:, None] * shape + np.abs(H) ** 2 * np.real(
             np.diag(fcov)
         )[:, None]
         std = np.sqrt(var_h) / np.abs(conv)
@@ -494,6 +531,9 @@ def transfer_functions(
             line_pcov=line_pcov,
             force_pcov=fpcov,
             force_tail=float(np.mean(tails)) / fs,
+            noise_shape=shape if coloured else None,
+            noise_models=tuple(x_models),
+            force_noise_model=f_model,
         ),
         warnings,
     )
