@@ -124,6 +124,7 @@ def exact_impact(
     oversample: int = 16,
     anti_alias: str = "iir",
     coupling2: float = 0.0,
+    skew: float = 0.0,
 ) -> CleanRecord:
     """Exact response of a free-ended CLM chain (Eq. 7-8) to half-sine hits on its centre area.
 
@@ -160,6 +161,9 @@ def exact_impact(
         Second-neighbour coupling, a fraction of k_c and d_c between areas
         i and i +- 2 (springs and dampers, like the first-neighbour ones):
         a truth outside the CLM family (issue 24) [-]; 0 = the CLM chain.
+    skew : float
+        The responses are sampled ``skew`` seconds late against the force
+        (exactly: the modal solution at t - skew) [s].
 
     Returns
     -------
@@ -199,7 +203,7 @@ def exact_impact(
         a = np.clip(t - dt / 2 - th, 0.0, pulse_duration)
         b = np.clip(t + dt / 2 - th, 0.0, pulse_duration)
         f += amplitude * (np.cos(w0 * a) - np.cos(w0 * b)) / (w0 * dt)
-        q = _modal_half_sine(lam, t, th, pulse_duration) * (amplitude * g)[None, :]
+        q = _modal_half_sine(lam, t - skew, th, pulse_duration) * (amplitude * g)[None, :]
         u += np.real(q @ Vu.T)
         v += np.real(q @ Vv.T)
     if quantity == "displacement":

@@ -363,6 +363,10 @@ def transfer_functions(
         )
     if not 0.0 < spec.exp_end <= 1.0:
         raise CalibrationError(f"exp_end = {spec.exp_end:g}: must lie in (0, 1]")
+    for key in ("force_tail", "noise_order"):
+        v = getattr(spec, key)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise CalibrationError(f"window: {key} = {v!r}: must be an integer >= 0")
     warnings: list[str] = []
     f = rec.force
     hits, pol = find_hits(f, fs, spec)
