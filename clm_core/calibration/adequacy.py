@@ -51,8 +51,10 @@ from clm_core.arrays import Array, CArray
 from clm_core.calibration.lsq import ParameterEstimate, Sandwich, covariance
 from clm_core.calibration.spectra import TransferData
 
-#: Warn when a test's p-value is below this [-] (about 3 sigma for one degree of freedom).
+#: Warn about a delay when its test's p-value is below this [-] (3 sigma for one degree of freedom).
 ADEQUACY_P = 2.7e-3
+#: Warn about data outside the CLM when the second-neighbour test's p-value is below this [-].
+COUPLING_P = 0.01
 #: Warn when the first estimate and the refined fit differ by more than this many sigma on a parameter [-].
 FIRST_VS_FIT_Z = 3.0
 
@@ -312,7 +314,7 @@ def adequacy_warnings(checks: Checks, applied: float, est: Sequence[ParameterEst
             "timing accuracy (options timing_accuracy) so that the intervals cover it"
         )
     parts = []
-    if cp is not None and cp.rejects():
+    if cp is not None and cp.rejects(COUPLING_P):
         parts.append(
             f"second-neighbour coupling k_c2 = {cp.estimate[0]:.3g} +- {cp.std[0]:.2g} N/m, "
             f"d_c2 = {cp.estimate[1]:.3g} +- {cp.std[1]:.2g} N s/m "
@@ -338,7 +340,7 @@ def adequacy_warnings(checks: Checks, applied: float, est: Sequence[ParameterEst
 def adequacy_summary(fit: Any) -> dict[str, Any]:
     """The checks of a :class:`~clm_core.calibration.impact.SoilFit` for ``summary.json`` (``fit.adequacy``)."""
     out: dict[str, Any] = {"delay_applied_s": fit.delay_applied, "timing_accuracy_s": fit.timing_accuracy}
-    for key, t in (("delay", fit.delay), ("second_neighbour_coupling", fit.coupling2)):
+    for key, t, level in (("delay", fit.delay, ADEQUACY_P), ("second_neighbour_coupling", fit.coupling2, COUPLING_P)):
         if t is not None:
             out[key] = {
                 "parameters": list(t.names),
@@ -348,7 +350,8 @@ def adequacy_summary(fit: Any) -> dict[str, Any]:
                 "dof": t.dof,
                 "p_value": t.p_value,
                 "sigma": t.sigma,
-                "warned": t.rejects(),
+                "warned": t.rejects(level),
+                "warn_below_p": level,
             }
     fv = fit.first_vs_fit
     if fv is not None:

@@ -250,3 +250,23 @@ def test_timing_and_noise_options_are_checked() -> None:
         fit_impact(data, "clm", delay="x")
     with pytest.raises(CalibrationError, match="window: noise_order = -1: must be an integer >= 0"):
         transfer_functions(_synthetic(1000.0, 40.0), 2.0, 150.0, WindowSpec(noise_order=-1))
+
+
+def test_calibrate_reports_the_checks_in_summary_json(tmp_path: Path) -> None:
+    """A bag whose responses lag the force by 20 us (40 dB): calibrate(..., delay: fit) states the delay it removed
+    and the model tests in summary.json (fit.adequacy)."""
+    import json
+
+    from clm_core.calibration import calibrate
+    from clm_core.synthetic import write_bag
+
+    rec = add_noise(simulate_impact(STIFF, n_areas=11, fs=1000.0, skew=2e-5), 46.0, 4)
+    path = tmp_path / "skewed"
+    write_bag(rec, path)
+    res = calibrate(path, "impact", {"delay": "fit", "compare": False})
+    adq = json.loads(res.summary_json())["fit"]["adequacy"]
+    assert abs(adq["delay_applied_s"] - 2e-5) < 3 * adq["delay"]["std"][0], adq
+    assert adq["delay"]["warned"] and adq["delay"]["p_value"] < 2.7e-3
+    assert set(adq["second_neighbour_coupling"]) >= {"estimate", "std", "chi2", "dof", "p_value", "warned"}
+    assert set(adq["first_vs_refined"]["z"]) == set(NAMES)
+    assert any("delay fitted" in w for w in res.warnings)
