@@ -22,6 +22,7 @@ import yaml
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array
+from clm_core.calibration.adequacy import adequacy_summary
 from clm_core.calibration.bagio import WheelLoadRecord, read_bag
 from clm_core.calibration.channels import ChannelMap, find_channel_map, load_channel_map
 from clm_core.calibration.errors import BagError, CalibrationError
@@ -222,6 +223,7 @@ class CalibrationResult:
                     "ljung_box_lags": w.lags,
                     "p_value": w.p_value,
                 }
+            out["fit"]["adequacy"] = adequacy_summary(mf)
             if self.stats.inflation:
                 out["fit"]["interval_inflation"] = {
                     name: c for name, c in zip(mf.channels_used, self.stats.inflation)
@@ -408,6 +410,8 @@ def calibrate(
             controls=reporting(controls, f"{opts.model} fit", 0.25, 0.6),
             interval=opts.interval,
             first=opts.first,
+            delay=opts.delay,
+            timing_accuracy=opts.timing_accuracy,
         )
         warnings += main.warnings
         report(f"{opts.model} fit", 0.6)

@@ -60,12 +60,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array, CArray
+from clm_core.calibration.adequacy import (
+    DELAY_MODES,
+    ExtensionTest,
+    FirstVsFit,
+    adequacy_warnings,
+    first_vs_refined,
+    model_checks,
+    widen,
+)
 from clm_core.calibration.errors import CalibrationError
 from clm_core.calibration.lsq import FitControls, FitResult, FitStats, ParameterEstimate, Sandwich, fit_constrained
 from clm_core.calibration.residuals import (
@@ -127,6 +136,21 @@ class SoilFit(FitResult):
         (n_areas, rms residual) of every chain length tried.
     whiteness : WhitenessCheck or None
         Test of the residuals against the noise model (``weighted`` norm).
+    delay : ExtensionTest or None
+        Force-to-response delay tau [s] that the data show (linearised
+        estimate, its standard error and Wald test;
+        :mod:`clm_core.calibration.adequacy`); with ``delay='fit'``, the
+        delay that was removed (``delay_applied``) and its uncertainty.
+    coupling2 : ExtensionTest or None
+        Second-neighbour coupling (k_c2, d_c2) that the data show: a test of
+        the CLM family.
+    first_vs_fit : FirstVsFit or None
+        The Eq. (16)/(18) first estimate against the refined fit (sigma per parameter).
+    delay_applied : float
+        Delay removed from the responses before the fit (``delay='fit'``) [s].
+    timing_accuracy : float
+        Stated force-to-response timing accuracy whose effect widens the
+        intervals [s].
     """
 
     model: str
@@ -138,6 +162,11 @@ class SoilFit(FitResult):
     chain_selection: str = "fixed"
     chain_trials: tuple[tuple[int, float], ...] = ()
     whiteness: WhitenessCheck | None = None
+    delay: ExtensionTest | None = None
+    coupling2: ExtensionTest | None = None
+    first_vs_fit: FirstVsFit | None = None
+    delay_applied: float = 0.0
+    timing_accuracy: float = 0.0
 
 
 def _soil(model: str, values: Mapping[str, float]) -> SoilParams:
@@ -274,6 +303,7 @@ class _ChainFit:
     stats: FitStats
     warnings: list[str]
     r: Array
+    J: Array
 
 
 def fit_impact(
@@ -289,6 +319,8 @@ def fit_impact(
     first: str = "weighted",
     grow_tol: float = 0.005,
     max_areas: int | None = None,
+    delay: str = "check",
+    timing_accuracy: float = 0.0,
 ) -> SoilFit:
     """Fit a soil model to the receptances of an impact test.
 
@@ -325,6 +357,15 @@ def fit_impact(
     max_areas : int, optional
         Automatic chain length: longest chain tried (default
         2 max|index| + 1 + 8 steps, at most 201).
+    delay : {'check', 'fit'}
+        Force-to-response delay: ``check`` estimates it after the fit and
+        warns when the data show one; ``fit`` also removes it from the
+        responses, fits again, and widens the intervals by its uncertainty
+        (:mod:`clm_core.calibration.adequacy`).
+    timing_accuracy : float
+        Stated accuracy of the force-to-response timing [s]: a delay
+        anywhere in +-timing_accuracy (uniform) adds its effect on each
+        parameter to the variance.
 
     Returns
     -------
@@ -341,6 +382,10 @@ def fit_impact(
         raise CalibrationError(f"model = {model!r}: must be one of {', '.join(SOIL_FIT_MODELS)}")
     if first not in FIRST_ESTIMATES:
         raise CalibrationError(f"first = {first!r}: must be one of {', '.join(FIRST_ESTIMATES)}")
+    if delay not in DELAY_MODES:
+        raise CalibrationError(f"delay = {delay!r}: must be one of {', '.join(DELAY_MODES)}")
+    if not (math.isfinite(timing_accuracy) and timing_accuracy >= 0):
+        raise CalibrationError(f"timing_accuracy = {timing_accuracy!r} s: must be finite and >= 0")
     if not data.channels or any(c.location != "area" for c in data.channels):
         bad = [c.name for c in data.channels if c.location != "area"]
         raise CalibrationError(
@@ -421,6 +466,36 @@ def fit_impact(
     )
     if white is not None and not _looks_white(fit.stats.rms, white):
         warns.append(_whiteness_warning(data, used, fit, white, auto, tried, run, grow_tol))
+    checks = (
+        model_checks(data, used, W, fit.n_areas, fit.p, fit.r, fit.J, fit.est, fe_params, sandwich=sandwich,
+                     interval=interval, corr=corr_factor(data, norm_used), groups=chans, group_power=power)
+        if (model == "clm" and W is not None)
+        else (None, None, None)
+    )
+    applied = 0.0
+    if delay == "fit" and checks[0] is not None:
+        tau = float(checks[0].estimate[0])
+        shifted = replace(data, H=data.H * np.exp(data.s * tau)[:, None])
+        again = fit_impact(
+            shifted, model, norm, n_areas, initial, first_data, controls=controls, interval=interval, first=first,
+            delay="check",
+        )
+        refit = _ChainFit(again.n_areas, np.array([getattr(again.soil, k) for k in free]), again.parameters,
+                          again.stats, list(again.warnings), fit.r, fit.J)
+        est = widen(refit.est, checks[0].shift[:, 0], float(checks[0].std[0]) ** 2)
+        fit = replace(refit, est=est)
+        data, p, applied = shifted, fit.p, tau
+        warns.append(
+            f"delay fitted: the responses were advanced by {1e6 * tau:.3g} us (+- {1e6 * checks[0].std[0]:.2g} us) "
+            "before the fit; the intervals include its uncertainty"
+        )
+        fe_params, method, p0 = again.first_estimate_parameters, again.first_estimate_method, np.array(
+            [again.first_estimate[k] for k in free]
+        )
+        checks = (checks[0], again.coupling2, first_vs_refined(fe_params, fit.est))
+    if timing_accuracy > 0 and checks[0] is not None:
+        fit = replace(fit, est=widen(fit.est, checks[0].shift[:, 0], timing_accuracy**2 / 3.0))
+    warns += adequacy_warnings(checks, applied, fit.est)
     soil = _soil(model, dict(zip(free, p)))
     X, _ = chain_response(soil, n_areas, data.s)
     c = n_areas // 2
@@ -449,6 +524,11 @@ def fit_impact(
         chain_selection="auto" if auto else "fixed",
         chain_trials=tuple(tried),
         whiteness=white,
+        delay=checks[0],
+        coupling2=checks[1],
+        first_vs_fit=checks[2],
+        delay_applied=applied,
+        timing_accuracy=timing_accuracy,
     )
 
 
@@ -504,8 +584,8 @@ def _fit_chain(
         groups=chans,
         group_power=power,
     )
-    r, _ = residual(p)
-    return _ChainFit(n_areas, p, est, stats, w2, r)
+    r, J = residual(p)
+    return _ChainFit(n_areas, p, est, stats, w2, r, J)
 
 
 def _looks_white(rms: float, w: WhitenessCheck) -> bool:

@@ -54,6 +54,13 @@ class CalibrationOptions:
     interval : str
         Impact test: how the 95 % intervals are computed, ``inflated``
         (default), ``noise`` or ``hac`` (:mod:`clm_core.calibration.lsq`).
+    delay : str
+        Impact test: force-to-response delay, ``check`` (estimate it, warn
+        when the data show one) or ``fit`` (remove it and widen the
+        intervals by its uncertainty) (:mod:`clm_core.calibration.adequacy`).
+    timing_accuracy : float
+        Impact test: stated force-to-response timing accuracy [s]; its effect
+        widens the intervals (0: none stated).
     n_sleepers : int
         Receptance test: sleepers of the model track (odd).
     fit : tuple of str or None
@@ -99,6 +106,8 @@ class CalibrationOptions:
     n_areas: int | None = None
     first: str = "weighted"
     interval: str = "inflated"
+    delay: str = "check"
+    timing_accuracy: float = 0.0
     n_sleepers: int = 41
     fit: tuple[str, ...] | None = None
     soil: str = "fixed"
@@ -136,6 +145,11 @@ class CalibrationOptions:
             raise CalibrationError(f"first = {self.first!r}: must be weighted or paper")
         if self.interval not in INTERVALS:
             raise CalibrationError(f"interval = {self.interval!r}: must be one of {', '.join(INTERVALS)}")
+        if self.delay not in ("check", "fit"):
+            raise CalibrationError(f"delay = {self.delay!r}: must be check or fit")
+        ta = self.timing_accuracy
+        if not (isinstance(ta, (int, float)) and math.isfinite(ta) and ta >= 0):
+            raise CalibrationError(f"timing_accuracy = {ta!r} s: must be a finite number >= 0")
         if self.n_areas is not None and (self.n_areas < 3 or self.n_areas % 2 == 0):
             raise CalibrationError(f"n_areas = {self.n_areas}: must be odd and >= 3")
         if self.n_sleepers < 3 or self.n_sleepers % 2 == 0:
@@ -195,7 +209,7 @@ class CalibrationOptions:
                 kw["initial"] = {str(k): float(v) for k, v in kw["initial"].items()}
             except (TypeError, ValueError):
                 raise CalibrationError(f"options: initial = {kw['initial']!r}: values must be numbers") from None
-        for key in ("fmin", "fmax", "dt", "quiet_distance", "ident_rel", "cond_max"):
+        for key in ("fmin", "fmax", "dt", "quiet_distance", "ident_rel", "cond_max", "timing_accuracy"):
             if key in kw and kw[key] is not None:
                 try:
                     kw[key] = float(kw[key])

@@ -232,7 +232,7 @@ def _longest_run(mask: NDArray[np.bool_]) -> tuple[int, int]:
     return int(lengths[j]), int(starts[j])
 
 
-def _fractional_delay(x: Array, shift: float) -> Array:
+def fractional_delay(x: Array, shift: float) -> Array:
     """Delay ``x`` by ``shift`` samples (band-limited, FFT with zero padding): y[k] = x(k - shift)."""
     if abs(shift) < 1e-9:
         return x
@@ -301,7 +301,7 @@ def common_grid(
         frac = pos - i0
         seg = x[i0 : i0 + n + 1]
         if frac > 1e-6:
-            seg = _fractional_delay(seg, -frac)
+            seg = fractional_delay(seg, -frac)
             if frac > 1e-3:
                 notes.append(f"{s.spec.topic}: shifted by {frac * dt_ref:.3g} s to the common grid")
         if seg.size < n:

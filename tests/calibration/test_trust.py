@@ -70,9 +70,9 @@ def test_force_noise_pseudo_covariance_predicts_the_scatter() -> None:
     """Force noise lives in a few milliseconds: its spectrum is nearly real, E[dF_k dF_l] matters (issue 14).
 
     Monte Carlo over 300 force-noise draws (soft soil, 21 geophones, force noise 8 % of its rms over the
-    0.1 s after the hit): the linearised parameter covariance (J^T J)^-1 S (J^T J)^-1, S the covariance of
-    the scores J^T r, is predicted within 15 % by the sandwich with the pseudo-covariance; without it the
-    variances are 10-25 % too small.
+    0.1 s after the hit; the prediction averaged over the first 20 records' noise models): the linearised
+    parameter covariance (J^T J)^-1 S (J^T J)^-1, S the covariance of the scores J^T r, is predicted within
+    15 % by the sandwich with the pseudo-covariance; without it the variances are up to 25 % too small (k_f).
     """
     soil = load_soil("soft")
     cols = list(range(21))
@@ -81,12 +81,12 @@ def test_force_noise_pseudo_covariance_predicts_the_scatter() -> None:
     rng = np.random.default_rng(5)
     sigma_f = 0.08 * float(np.sqrt(np.mean(rec.force[(rec.t >= 0.2) & (rec.t < 0.3)] ** 2)))
     scores = []
-    ref = W = J = None
-    for _ in range(300):
+    W = J = None
+    pred: list[list[np.ndarray]] = [[], []]
+    for k in range(300):
         r = replace(base, force=base.force + rng.normal(0.0, sigma_f, base.force.size))
         data, _ = transfer_functions(r, 2.0, 150.0)
-        if ref is None:
-            ref = data
+        if W is None:
             W, _, _ = norm_weights(data, cols, "weighted")
             assert W is not None
             X, dX = chain_response(soil, 21, data.s, jacobian=True)
@@ -94,16 +94,21 @@ def test_force_noise_pseudo_covariance_predicts_the_scatter() -> None:
             J = stack_residual(X * W, dX * W[None])[1]
         assert W is not None and J is not None
         scores.append(J.T @ stack_residual(data.H * W)[0])
-    assert ref is not None and W is not None and J is not None
+        if k < 20:
+            # the prediction averaged over 20 records: one record's noise level (from ~190 samples before the
+            # hit) is itself uncertain by ~10 % in variance, which is not what this test is about
+            for i, d in enumerate((data, replace(data, line_pcov=None, force_pcov=None))):
+                sw = make_sandwich(d, cols, W.astype(complex))
+                assert sw is not None
+                pred[i].append(sw(J)[0])
+    assert W is not None and J is not None
     inv = np.linalg.inv(J.T @ J)
     emp = np.diag(inv @ np.cov(np.array(scores).T) @ inv)
-    ratios = []
-    for d in (ref, replace(ref, line_pcov=None, force_pcov=None)):
-        sw = make_sandwich(d, cols, W.astype(complex))
-        assert sw is not None
-        ratios.append(emp / np.diag(inv @ sw(J)[0] @ inv))
+    ratios = [emp / np.diag(inv @ np.mean(P, axis=0) @ inv) for P in pred]
     assert np.all((0.85 < ratios[0]) & (ratios[0] < 1.15)), ratios[0]
-    assert abs(np.mean(np.log(ratios[0]))) < 0.5 * abs(np.mean(np.log(ratios[1]))), ratios
+    # since issue 24 the force window keeps >= 20 samples after the pulse (4 before): the force noise's spectrum
+    # is less nearly real and the pseudo-covariance matters most for k_f (without it 25 % too small, with it 11 %)
+    assert np.max(np.abs(np.log(ratios[0]))) < 0.6 * np.max(np.abs(np.log(ratios[1]))), ratios
 
 
 def test_coverage_on_a_small_replicate_set() -> None:
