@@ -87,7 +87,7 @@ from clm_ros.diagnostics import (
     lag_level,
     lag_values,
 )
-from clm_ros.node_main import StopSignals, run_node
+from clm_ros.node_main import StopSignals, freeze_heap, run_node
 from clm_ros.parameters import declare_model_parameters, declare_settings
 from clm_ros.realtime import NOT_APPLIED, Scheduling
 from clm_ros.track_views import MonitoredSleepers, monitored_indices, window_markers
@@ -349,8 +349,7 @@ class TrackNode(LifecycleNode):
         ret = super().on_activate(state)
         if ret != TransitionCallbackReturn.SUCCESS:
             return ret
-        gc.collect()
-        gc.freeze()  # what exists now (model, kernels, modules) is never scanned again: shorter collections
+        freeze_heap()  # what exists now (model, kernels, modules) is not scanned while active: shorter collections
         self._subscribe()
         self._accepting = True
         self._state = "active"
@@ -388,6 +387,11 @@ class TrackNode(LifecycleNode):
                 setattr(self, name, None)
         self.model = None
         self._last_response = None
+        # the model frozen at activation would never be collected (its reference cycles stayed for good: ~200 kB
+        # a configure / activate / cleanup cycle, issue 26.8); back under the collector, the next activation
+        # freezes what lives then
+        gc.unfreeze()
+        gc.collect()
         self._state = state or "unconfigured"
         return TransitionCallbackReturn.SUCCESS
 
