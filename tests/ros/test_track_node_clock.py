@@ -5,6 +5,8 @@ stamps (a simulator paused, a clock publisher gone): every answer is
 "published" 10 s before its stamp's time. The node's ``/diagnostics`` said OK
 with lags of -10 s; now WARN, the message names the clock, and the smallest
 lag is shown (``lag_min_s``). Once the clock runs with the stamps again, OK.
+
+Also (issue 26, item 10): a parameter the node does not have is refused with its name.
 """
 
 from __future__ import annotations
@@ -64,3 +66,12 @@ def test_negative_lag_from_a_stopped_clock_is_a_warning(ros_python, ros_domain_i
         drv.wait_for(settled, 30, "diagnostics of the last answers")
         d = next(d for d in reversed(final) if d.get("answers_in_period", "0") != "0")
         assert float(d["lag_min_s"]) > -1.0 and "negative lag" not in d["_message"], d
+
+
+def test_undeclared_parameter_refusal_names_it(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
+    """A parameter the node does not have is refused with its name (issue 26.10: rclpy said 'parameter(s): []');
+    the node keeps every value and answers."""
+    with track_node(ros_python, ros_domain_id, discover=False) as run:
+        r = run.drv.set_double("soil.kff", 7e7)
+        assert not r.successful and "undeclared parameter(s): ['soil.kff']" in r.reason, r.reason
+        assert run.drv.set_double("soil.kf", 7e7).successful
