@@ -18,6 +18,7 @@ import pytest
 from clm_core import settings
 from clm_core.errors import InputError, ParameterError
 from clm_core.io.errors import MessageError
+from clm_core.io.timebase import NS
 from clm_core.online import InputPolicy, OnlineTrackModel, Reason, Rejected, WheelFrame
 from clm_core.params import load_model
 from clm_core.solver import TrackSimulator
@@ -375,3 +376,30 @@ def test_malformed_frames(params) -> None:  # type: ignore[no-untyped-def]
     got = m.process_batch(bad)
     assert [r.reason for r in got] == [Reason.MALFORMED] * 3 + [Reason.SIZE_MISMATCH]  # type: ignore[union-attr]
     assert m.stats.accepted == 0 and m.stats.rejected_total == 4 and not math.isnan(m.dt)
+
+
+def test_catch_up_work_per_message_is_bounded(params) -> None:  # type: ignore[no-untyped-def]
+    """A frame within max_gap but more than MAX_CATCH_UP_NS ahead re-synchronises instead of integrating the gap
+    step by step (issue 26.10: 1 s ahead was 10 000 steps, ~195 ms of CPU); a shorter gap is integrated."""
+    from clm_core.online.policy import MAX_CATCH_UP_NS
+
+    clean = stream(30, t0=WALL)
+    m = _model(params)
+    answers(m, clean)
+    last = clean[-1]
+    near = _at(last, last.stamp_ns + MAX_CATCH_UP_NS // 2)
+    steps = m.stats.steps
+    r = m.process(near)
+    assert not r.resynced and m.stats.steps - steps == MAX_CATCH_UP_NS // 2 // m.dt_ns
+    far = _at(last, near.stamp_ns + NS)  # 1 s ahead: within max_gap (1 s)
+    steps, resyncs = m.stats.steps, m.stats.resyncs
+    r = m.process(far)
+    assert r.resynced and m.stats.resyncs == resyncs + 1 and m.stats.steps - steps <= MAX_CATCH_UP_NS // m.dt_ns
+    # the state restarted there: the answers from it on are those of a fresh model started at that frame
+    after = [_at(far, far.stamp_ns + k * MS) for k in range(1, 20)]
+    got = answers(m, after)
+    ref = answers(_model(params), [far, *after])[1:]
+    assert all(same(a, b) for a, b in zip(got, ref))
+    # beyond max_gap it is still a jump (refused until confirmed)
+    with pytest.raises(Rejected, match="stamp_jump"):
+        m.process(_at(far, after[-1].stamp_ns + NS + MS))
