@@ -68,7 +68,7 @@ class TrackInput(LifecycleNode):
             if once in self._logged:
                 return
             self._logged.add(once)
-        logger, line = self.get_logger(), bounded(text)
+        logger, line = self.get_logger(), bounded(text)  # type: ignore[no-untyped-call]  # rclpy: unannotated
         # one call site per severity: rclpy's logger refuses another severity from the same line
         if level == "error":
             logger.error(line)
@@ -168,6 +168,8 @@ class TrackInput(LifecycleNode):
     def _replace_subscription(self) -> None:
         """A new subscription (QoS resolved anew); what the old one holds is answered first."""
         old = self._sub
+        if old is None:
+            return
         self._drain(old, [])
         self._subscribe()
         self._drain(old, [])
@@ -216,7 +218,7 @@ class TrackInput(LifecycleNode):
         src = self._sources.source
         if self.model is not None:
             self._reject(self.model.reject(Reason.SECOND_SOURCE, (
-                f"publisher {gid_text(gid)} is a second source on {self._sub.topic_name} (the stream's source is "
+                f"publisher {gid_text(gid)} is a second source on wheel_loads (the stream's source is "
                 f"{gid_text(src) if src else 'none'}): its messages are refused until the source leaves")))
 
     def _reject(self, exc: Rejected) -> None:

@@ -341,7 +341,8 @@ class TrackNode(TrackInput):
         self._subscribe()
         self._accepting = True
         self._state = "active"
-        self._log("info", f"active: subscribed to {self._sub.topic_name} ({self._reliability})")
+        topic = self._sub.topic_name if self._sub is not None else "wheel_loads"
+        self._log("info", f"active: subscribed to {topic} ({self._reliability})")
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
