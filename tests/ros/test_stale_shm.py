@@ -48,6 +48,8 @@ def _plant(port: int, age: float) -> list[Path]:
 def test_only_stale_ports_of_the_domain_are_removed(ros_domain_id) -> None:  # type: ignore[no-untyped-def]
     base = PORT_BASE + DOMAIN_GAIN * ros_domain_id
     other_domain = (ros_domain_id + 1) % 233
+    time.sleep(STALE_AGE)
+    clean_stale_ports(ros_domain_id)  # what earlier processes of this domain left (stale: removed, never ours)
     stale = _plant(base + 201, 0)
     mapped = _plant(base + 203, 0)
     foreign = _plant(PORT_BASE + DOMAIN_GAIN * other_domain + 205, 0)
@@ -65,6 +67,18 @@ def test_only_stale_ports_of_the_domain_are_removed(ros_domain_id) -> None:  # t
             f.unlink(missing_ok=True)
 
 
+def _identities(domain_id: int) -> set[tuple[str, int]]:
+    """(name, inode) of the domain's port files now: a file removed and created anew is another one."""
+    out = set()
+    for files in port_files(domain_id).values():
+        for f in files:
+            try:
+                out.add((f.name, f.stat().st_ino))
+            except OSError:  # removed meanwhile
+                continue
+    return out
+
+
 def test_kill9_then_8_starts_none_hangs(ros_python, ros_domain_id, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     victim = ros_python.spawn(TRACK_NODE, ["--ros-args", "-r", "__node:=victim"], name="victim")
@@ -74,13 +88,13 @@ def test_kill9_then_8_starts_none_hangs(ros_python, ros_domain_id, monkeypatch) 
     time.sleep(2.0)  # the victim in its stride: discovery and diagnostics on its ports
     victim.kill()
     victim.wait(10)
-    left = {f.name for files in port_files(ros_domain_id).values() for f in files}
-    print(f"left behind by the kill -9: {sorted(left)}")
+    left = _identities(ros_domain_id)
+    print(f"left behind by the kill -9: {sorted(name for name, _ in left)}")
     assert left, "the killed node left no shared-memory port (nothing to test)"
     procs = [ros_python.spawn(TRACK_NODE, ["--ros-args", "-r", f"__node:=n{k}", "-p", "autostart:=false"],
                               name=f"node{k}") for k in range(STARTS)]
     # the new nodes remove the stale files before they open the domain's ports (the test's participant joins after)
-    while left & {f.name for files in port_files(ros_domain_id).values() for f in files}:
+    while left & _identities(ros_domain_id):  # (a new node may create a port of the same name: a new file)
         assert time.monotonic() < deadline + START_TIMEOUT, "the stale files were never removed"
         assert all(p.poll() is None for p in procs), [p.communicate() for p in procs if p.poll() is not None]
         time.sleep(0.2)
