@@ -9,8 +9,12 @@ writer's identity, so the track node takes them itself:
 - :class:`GidSubscription`: the raw ``wheel_loads`` subscription, created by
   rclpy as usual (QoS overrides, events) but hidden from the executor; its
   messages are taken with ``rcl_take_serialized_message`` (through ctypes),
-  whose ``rmw_message_info_t`` carries the publisher's GID; the middleware's
-  "new message" callback hands the executor a task (``create_task``, thread
+  whose ``rmw_message_info_t`` carries the publisher's GID. The middleware's
+  "new message" callback is libc's ``eventfd_write`` (C, no Python: the
+  middleware calls it holding its reader's lock, and a Python callback there
+  would wait for the GIL while the executor thread, holding the GIL, waits in
+  rclpy for that lock: a deadlock, seen in the soak); a thread of the node
+  waits on that eventfd and hands the executor a task (``create_task``, thread
   safe; one at a time) that takes what has arrived (rclpy's EventsExecutor
   serves no guard condition).
 - :class:`Sources`: the first publisher heard is the stream's source; a
@@ -22,6 +26,8 @@ writer's identity, so the track node takes them itself:
 from __future__ import annotations
 
 import ctypes
+import os
+import threading
 from collections import Counter
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -120,12 +126,28 @@ class GidSubscription:
         self._info = _MessageInfo()
         self._on_ready = on_ready
         self._pending = False
-        # called by the middleware's thread on arrival (with the GIL, by ctypes): a task for the executor thread
-        self._callback = _EVENT_CALLBACK(self._ring)
-        self._pointer = ctypes.c_void_p(sub.handle.pointer)
-        if self._rcl.rcl_subscription_set_on_new_message_callback(self._pointer, self._callback, None) != _RCL_OK:
-            raise RuntimeError("rcl_subscription_set_on_new_message_callback failed")
         self.closed = False
+        # on arrival the middleware's thread calls eventfd_write(fd, n) (user_data = the fd): C only, no GIL
+        self._efd = os.eventfd(0, os.EFD_CLOEXEC)
+        libc = ctypes.CDLL(None)
+        self._callback = _EVENT_CALLBACK(ctypes.cast(libc.eventfd_write, ctypes.c_void_p).value)
+        self._thread = threading.Thread(target=self._doorbell, name="clm_wheel_loads_doorbell", daemon=True)
+        self._thread.start()
+        self._pointer = ctypes.c_void_p(sub.handle.pointer)
+        if self._rcl.rcl_subscription_set_on_new_message_callback(self._pointer, self._callback,
+                                                                  ctypes.c_void_p(self._efd)) != _RCL_OK:
+            raise RuntimeError("rcl_subscription_set_on_new_message_callback failed")
+
+    def _doorbell(self) -> None:
+        """Thread: wait on the eventfd (the GIL released), then hand the executor a task; until destroyed."""
+        while True:
+            try:
+                os.eventfd_read(self._efd)
+            except OSError:
+                return
+            if self.closed:
+                return
+            self._ring(None, 0)
 
     def _ring(self, _user: Any, _count: int) -> None:
         executor = self.node.executor
@@ -164,6 +186,9 @@ class GidSubscription:
             return
         self.closed = True
         self._rcl.rcl_subscription_set_on_new_message_callback(self._pointer, _EVENT_CALLBACK(), None)
+        os.eventfd_write(self._efd, 1)  # the doorbell thread sees closed and ends
+        self._thread.join(2.0)
+        os.close(self._efd)
         self.node._subscriptions.append(self.sub)  # back in the node's list, destroyed the node's way
         self.node.destroy_subscription(self.sub)
         self._rcutils.rcutils_uint8_array_fini(ctypes.byref(self._buf))
