@@ -182,6 +182,25 @@ class SoilParams:
         return out
 
 
+#: Most sleepers all the per-sleeper overrides of one parameter file may name together: 1 000 000 (600 km of line
+#: at 0.6 m spacing; a model holds at most ~330 000 sleepers, clm_core.track.MAX_DOFS). A range without a
+#: bound (``{from: 0, to: 1e12}``) would be expanded into that many indices and exhaust the memory (issue 26.7:
+#: 2.96 GB in 4 s); it is refused, with this bound, before anything is allocated.
+MAX_OVERRIDE_SLEEPERS = 1_000_000
+#: Largest ``|sleeper index|`` of an override (an index is a position on the line: 1e9 sleepers, 600 000 km).
+MAX_SLEEPER_INDEX = 1_000_000_000
+
+
+def _sleeper_index(value: Any, what: str) -> int:
+    """A sleeper index of an override, checked: an integer with ``|i| <= MAX_SLEEPER_INDEX``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        raise ParameterError(f"overrides: {what} = {value!r}: must be an integer sleeper index")
+    i = int(value)
+    if abs(i) > MAX_SLEEPER_INDEX:
+        raise ParameterError(f"overrides: {what} = {i}: must be within +-{MAX_SLEEPER_INDEX} (a sleeper index)")
+    return i
+
+
 # Names accepted by `override()` / `--set NAME=VALUE` and per-sleeper overrides.
 RAIL_NAMES = tuple(f.name for f in fields(RailParams))
 TRACK_NAMES = tuple(f.name for f in fields(TrackParams))
@@ -227,15 +246,22 @@ class SleeperOverride:
     def from_dict(cls, data: Mapping[str, Any]) -> SleeperOverride:
         """Build from ``{sleepers: [...]}`` or ``{from: i, to: j}`` plus values."""
         d = dict(data)
+        bound = f"at most {MAX_OVERRIDE_SLEEPERS} sleepers in all the overrides of a file"
         if "sleepers" in d:
             raw = d.pop("sleepers")
-            if isinstance(raw, int):
+            if isinstance(raw, (int, float)):
                 raw = [raw]
-            sleepers = tuple(int(s) for s in raw)
+            if not isinstance(raw, (list, tuple)):
+                raise ParameterError(f"overrides: sleepers = {str(raw)[:80]!r}: must be a list of sleeper indices")
+            if len(raw) > MAX_OVERRIDE_SLEEPERS:
+                raise ParameterError(f"overrides: sleepers lists {len(raw)} sleepers: {bound}")
+            sleepers = tuple(_sleeper_index(v, "sleepers[]") for v in raw)
         elif "from" in d and "to" in d:
-            a, b = int(d.pop("from")), int(d.pop("to"))
+            a, b = _sleeper_index(d.pop("from"), "from"), _sleeper_index(d.pop("to"), "to")
             if b < a:
                 raise ParameterError(f"overrides: to = {b} < from = {a}")
+            if b - a + 1 > MAX_OVERRIDE_SLEEPERS:
+                raise ParameterError(f"overrides: from = {a} to = {b} spans {b - a + 1} sleepers: {bound}")
             sleepers = tuple(range(a, b + 1))
         else:
             raise ParameterError(f"overrides entry {dict(data)!r}: needs 'sleepers: [...]' or 'from'/'to'")
@@ -306,7 +332,19 @@ class ModelParams:
         soil_data = dict(data.get("soil", {"model": "rigid"}))
         soil_data.setdefault("model", "clm")
         soil = _build(SoilParams, soil_data, "soil")
-        overrides = tuple(SleeperOverride.from_dict(o) for o in data.get("overrides", []) or [])
+        raw_overrides = data.get("overrides", []) or []
+        if not isinstance(raw_overrides, list) or not all(isinstance(o, Mapping) for o in raw_overrides):
+            raise ParameterError("parameter file: overrides must be a list of mappings ({sleepers: [...], kb: ...})")
+        built: list[SleeperOverride] = []
+        total = 0
+        for o in raw_overrides:  # the bound checked as they are built: never more than it in memory
+            built.append(SleeperOverride.from_dict(o))
+            total += len(built[-1].sleepers)
+            if total > MAX_OVERRIDE_SLEEPERS:
+                raise ParameterError(f"overrides name more than {MAX_OVERRIDE_SLEEPERS} sleepers in all (at entry "
+                                     f"{len(built)}): at most {MAX_OVERRIDE_SLEEPERS} sleepers in all the overrides "
+                                     "of a file")
+        overrides = tuple(built)
         return cls(rail=rail, track=track, soil=soil, overrides=overrides, name=str(data.get("name", "")))
 
 
@@ -441,6 +479,14 @@ def model_from_settings(
     return load_model(track, soil, model, overrides)
 
 
+def yaml_problem(exc: yaml.YAMLError) -> str:
+    """The problem of a YAML error and where it is (line, column), on one line, without the file's text."""
+    problem = getattr(exc, "problem", None) or getattr(exc, "context", None) or type(exc).__name__
+    mark = getattr(exc, "problem_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    return " ".join(f"{problem}{where}".split())
+
+
 def read_yaml_mapping(
     path: str | Path, what: str = "parameter file", error: type[ClmError] = PresetError
 ) -> dict[str, Any]:
@@ -466,7 +512,9 @@ def read_yaml_mapping(
     try:
         data = yaml.safe_load(p.read_text())
     except yaml.YAMLError as exc:
-        raise error(f"{p}: not valid YAML ({exc})") from None
+        raise error(f"{p}: not valid YAML ({yaml_problem(exc)})") from None
+    except RecursionError:
+        raise error(f"{p}: nested too deeply to be read (Python's recursion limit reached)") from None
     if not isinstance(data, dict):
         raise error(f"{p}: expected a mapping at the top level")
     return cast(dict[str, Any], data)

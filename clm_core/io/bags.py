@@ -38,6 +38,7 @@ import contextlib
 import heapq
 import os
 import shutil
+import stat
 import uuid
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -323,16 +324,36 @@ def is_bag(path: str | os.PathLike[str]) -> bool:
     return True
 
 
+def _kind(p: Path) -> str:
+    """What ``p`` is when it is neither a regular file nor a directory ('' when it is one of those)."""
+    mode = p.stat().st_mode
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return ""
+    return "a FIFO" if stat.S_ISFIFO(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else \
+        "a socket" if stat.S_ISSOCK(mode) else "not a regular file"
+
+
 def _bag_target(p: Path) -> tuple[Path, str, bool]:
-    """(path to open, storage, has metadata.yaml) under the one rule of the module docstring."""
+    """(path to open, storage, has metadata.yaml) under the one rule of the module docstring.
+
+    Only regular files are ever opened: a FIFO, a device (``/dev/zero``) or a socket, as the bag or inside a
+    bag directory, is refused before anything reads it (it could block for ever or never end).
+    """
     if not p.exists():
         raise BagError(f"bag {str(p)!r} not found: the path does not exist")
+    kind = _kind(p)
+    if kind:
+        raise BagError(f"bag {str(p)!r}: not a rosbag2 bag ({kind}, not a directory or an .mcap or .db3 file)")
     if p.is_file():
         if p.suffix not in _SUFFIX:
             raise BagError(
                 f"bag {str(p)!r}: not a rosbag2 bag (a directory with metadata.yaml, or an .mcap or .db3 file)"
             )
         return p, _SUFFIX[p.suffix], False
+    for f in p.iterdir():
+        kind = _kind(f) if f.name == "metadata.yaml" or f.suffix in _SUFFIX else ""
+        if kind:
+            raise BagError(f"bag {str(p)!r}: {f.name} is {kind}, not a regular file (never read)")
     if (p / "metadata.yaml").is_file():
         files = [f for f in p.iterdir() if f.suffix in _SUFFIX]
         return p, _SUFFIX[files[0].suffix] if files else "mcap", True
@@ -380,8 +401,9 @@ class BagReader:
             self._reader.open()
         except Exception as exc:  # rosbags raises several types for damaged files
             self._reader = None
+            why = " ".join(str(exc).split())[:300]  # one line: a YAML error spans several, with the file's text
             raise BagError(
-                f"bag {str(self.path)!r} cannot be opened: {exc} ({type(exc).__name__}); the file is truncated, "
+                f"bag {str(self.path)!r} cannot be opened: {why} ({type(exc).__name__}); the file is truncated, "
                 "corrupt or not a rosbag2 bag, so it cannot be read (an interrupted mcap recording can often be "
                 "repaired with `mcap recover`)"
             ) from None

@@ -136,6 +136,14 @@ def check_frame(positions: Array, forces: Array, speeds: Array, limits: Array) -
     return RULES[rule], int(wheel)
 
 
+#: Longest gap between two frames integrated step by step [ns] (0.1 s: 1 000 steps at dt = 1e-4 s, ~20 ms of CPU).
+#: A frame further ahead but within ``max_gap`` re-synchronises instead (the state restarts from static equilibrium
+#: under its loads at its stamp, one factorised solve; counted in ``resyncs``, its response flagged ``resynced``):
+#: a frame 1 s ahead cost ~195 ms of CPU, 10 000 steps, and stalled every answer queued behind it (issue 26.10).
+#: After 0.1 s the track's own dynamics (damping times of tens of ms) have died out: the equilibrium is what the
+#: integration would have reached.
+MAX_CATCH_UP_NS = NS // 10
+
 #: What :meth:`Timeline.restore` puts back: last stamp, candidate stamp, its count and its key.
 TimelineState = tuple[int | None, int | None, int, bytes]
 #: The key of frames whose response was refused: consecutive ones restart the state (a state that went bad).
@@ -151,6 +159,10 @@ class Timeline:
         Largest gap [ns] between consecutive frames of a timeline.
     confirm : int
         Consecutive frames on a new timeline that make it the stream's (>= 2).
+    max_catch_up_ns : int, optional
+        Longest gap integrated step by step [ns] (default :data:`MAX_CATCH_UP_NS`,
+        at most ``max_gap_ns``): a frame further ahead, within ``max_gap``,
+        re-synchronises (bounded work per message).
 
     Attributes
     ----------
@@ -167,9 +179,11 @@ class Timeline:
 
     ADVANCE, RESYNC = "advance", "resync"
 
-    def __init__(self, max_gap_ns: int, confirm: int) -> None:
+    def __init__(self, max_gap_ns: int, confirm: int, max_catch_up_ns: int | None = None) -> None:
         self.max_gap_ns = int(max_gap_ns)
         self.confirm = int(confirm)
+        self.max_catch_up_ns = min(self.max_gap_ns, MAX_CATCH_UP_NS if max_catch_up_ns is None else
+                                   int(max_catch_up_ns))
         self.last: int | None = None
         self.candidate: int | None = None
         self.count = 0
@@ -184,9 +198,10 @@ class Timeline:
         self.last, self.candidate, self.count, self.key = state
 
     def continues(self, stamp: int) -> bool:
-        """Whether a frame stamped ``stamp`` [ns] continues the stream: in ``(last, last + max_gap]``."""
+        """Whether a frame stamped ``stamp`` [ns] continues the stream, integrated step by step: in
+        ``(last, last + max_catch_up]``."""
         last = self.last
-        return last is not None and last < stamp <= last + self.max_gap_ns
+        return last is not None and last < stamp <= last + self.max_catch_up_ns
 
     def decide(self, stamp: int, key: bytes = b"", reason: Reason | None = None) -> str | Reason:
         """The fate of a valid frame stamped ``stamp`` [ns]; updates the candidate new stream.
@@ -208,7 +223,8 @@ class Timeline:
         str or Reason
             :attr:`ADVANCE` (it continues the stream), :attr:`RESYNC` (the
             first frame, or the one that confirms a new stream: a new timeline,
-            or a new wheel set) or the :class:`Reason` of its refusal. The
+            or a new wheel set; also a frame more than ``max_catch_up`` but at most
+            ``max_gap`` ahead) or the :class:`Reason` of its refusal. The
             caller reports an acceptance with :meth:`accepted`.
         """
         last = self.last
@@ -216,6 +232,8 @@ class Timeline:
             return self.RESYNC
         if not key and self.continues(stamp):
             return self.ADVANCE
+        if not key and last < stamp <= last + self.max_gap_ns:  # ahead by more than the catch-up bound
+            return self.RESYNC
         cand = self.candidate
         if cand is not None and cand < stamp <= cand + self.max_gap_ns and key == self.key:
             self.count += 1
@@ -263,6 +281,7 @@ def clip(text: str, limit: int = MESSAGE_CHARS) -> str:
 
 
 __all__ = [
+    "MAX_CATCH_UP_NS",
     "MESSAGE_CHARS",
     "RESPONSE_KEY",
     "RULES",

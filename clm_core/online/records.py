@@ -41,6 +41,7 @@ class Reason(str, Enum):
     STAMP_NOT_INCREASING = "stamp_not_increasing"
     STAMP_JUMP = "stamp_jump"
     IMPLAUSIBLE_RESPONSE = "implausible_response"
+    SECOND_SOURCE = "second_source"  # a second publisher on the topic (told apart at the edge, clm_ros.sources)
 
 
 class Rejected(InputError):

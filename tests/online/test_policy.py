@@ -18,6 +18,7 @@ import pytest
 from clm_core import settings
 from clm_core.errors import InputError, ParameterError
 from clm_core.io.errors import MessageError
+from clm_core.io.timebase import NS
 from clm_core.online import InputPolicy, OnlineTrackModel, Reason, Rejected, WheelFrame
 from clm_core.params import load_model
 from clm_core.solver import TrackSimulator
@@ -255,17 +256,22 @@ def test_two_outliers_on_one_timeline_still_refused(params) -> None:  # type: ig
 
 
 def test_header_nanosec_overflow_is_malformed(params) -> None:  # type: ignore[no-untyped-def]
-    """A header with nanosec >= 1e9 is refused at the edge as malformed, counted by the model."""
-    from clm_core.io.messages import frame_from_msg, typestore, wheel_loads_msg
+    """A header with nanosec >= 1e9 is refused at the edge, in the message and in its CDR bytes (the node's path),
+    before the model sees it: the model's state is untouched. (The node counts it as ``rejected.malformed``: over
+    DDS in tests/ros/test_track_node_robust.py.)"""
+    from clm_core.io.messages import frame_from_cdr, frame_from_msg, typestore, wheel_loads_msg
 
     ts = typestore()
     msg = wheel_loads_msg(ts, WALL, [0, 1], [30.0, 27.0], [85e3, 85e3])
-    msg.header.stamp.nanosec = 1_500_000_000
     m = _model(params)
+    m.process(frame_from_cdr(ts.serialize_cdr(msg, "clm_msgs/msg/WheelLoads")))
+    before = state(m)
+    msg.header.stamp.nanosec = 1_500_000_000
     with pytest.raises(MessageError, match="nanosec"):
         frame_from_msg(msg)
-    r = m.reject(Reason.MALFORMED, "header.stamp.nanosec = 1500000000")
-    assert r.reason is Reason.MALFORMED and m.stats.rejected["malformed"] == 1 and m.stats.accepted == 0
+    with pytest.raises(MessageError, match="nanosec"):
+        frame_from_cdr(ts.serialize_cdr(msg, "clm_msgs/msg/WheelLoads"))
+    assert state(m) == before and m.stats.accepted == 1 and m.stats.rejected_total == 0
 
 
 @pytest.mark.parametrize("jump", [-(WALL // 2), 50 * 10**9])  # a restart from an earlier time; a clock jump ahead
@@ -304,6 +310,23 @@ def test_a_first_frame_of_foreign_wheels_is_left_behind(params) -> None:  # type
     with pytest.raises(Rejected, match="unknown_id"):
         m.process(WheelFrame.of(clean[-1].stamp_ns + MS, [7, 8], [31.0, 28.0], [8e4, 8e4]))
     assert state(m) == before
+
+
+def test_second_publisher_on_the_same_clock_is_not_told_apart_by_stamps(params) -> None:  # type: ignore[no-untyped-def]
+    """A second publisher on the SAME clock (another vehicle, 100 m further, stamps interleaved): every stamp
+    continues the timeline, so the stamp rules cannot tell the two apart and the model alone would take them as one
+    stream (issue 26.2). The edge separates sources by publisher (the track node, by the writer's GID: over DDS in
+    tests/ros/test_track_node_sources.py); with the second source's frames refused there, the answers are bit for
+    bit those of the first stream alone."""
+    first = stream(60, t0=WALL)
+    second = stream(60, t0=WALL + MS // 2, x0=130.0)
+    mixed = [f for pair in zip(first, second) for f in pair]
+    merged = answers(_model(params), mixed)
+    assert not any(isinstance(r, Rejected) for r in merged)  # the stamps alone let the second source in
+    alone = answers(_model(params), first)
+    assert not all(same(a, b) for a, b in zip(merged[0::2], alone))  # ... and it corrupts the first one's answers
+    separated = answers(_model(params), [f for k, f in enumerate(mixed) if k % 2 == 0])
+    assert all(same(a, b) for a, b in zip(separated, alone))
 
 
 def test_interleaved_timelines_never_confirm(params) -> None:  # type: ignore[no-untyped-def]
@@ -353,3 +376,30 @@ def test_malformed_frames(params) -> None:  # type: ignore[no-untyped-def]
     got = m.process_batch(bad)
     assert [r.reason for r in got] == [Reason.MALFORMED] * 3 + [Reason.SIZE_MISMATCH]  # type: ignore[union-attr]
     assert m.stats.accepted == 0 and m.stats.rejected_total == 4 and not math.isnan(m.dt)
+
+
+def test_catch_up_work_per_message_is_bounded(params) -> None:  # type: ignore[no-untyped-def]
+    """A frame within max_gap but more than MAX_CATCH_UP_NS ahead re-synchronises instead of integrating the gap
+    step by step (issue 26.10: 1 s ahead was 10 000 steps, ~195 ms of CPU); a shorter gap is integrated."""
+    from clm_core.online.policy import MAX_CATCH_UP_NS
+
+    clean = stream(30, t0=WALL)
+    m = _model(params)
+    answers(m, clean)
+    last = clean[-1]
+    near = _at(last, last.stamp_ns + MAX_CATCH_UP_NS // 2)
+    steps = m.stats.steps
+    r = m.process(near)
+    assert not r.resynced and m.stats.steps - steps == MAX_CATCH_UP_NS // 2 // m.dt_ns
+    far = _at(last, near.stamp_ns + NS)  # 1 s ahead: within max_gap (1 s)
+    steps, resyncs = m.stats.steps, m.stats.resyncs
+    r = m.process(far)
+    assert r.resynced and m.stats.resyncs == resyncs + 1 and m.stats.steps - steps <= MAX_CATCH_UP_NS // m.dt_ns
+    # the state restarted there: the answers from it on are those of a fresh model started at that frame
+    after = [_at(far, far.stamp_ns + k * MS) for k in range(1, 20)]
+    got = answers(m, after)
+    ref = answers(_model(params), [far, *after])[1:]
+    assert all(same(a, b) for a, b in zip(got, ref))
+    # beyond max_gap it is still a jump (refused until confirmed)
+    with pytest.raises(Rejected, match="stamp_jump"):
+        m.process(_at(far, after[-1].stamp_ns + NS + MS))

@@ -186,3 +186,51 @@ def test_record_and_play_agree_on_what_a_bag_is(ros_env: dict[str, str], tmp_pat
     shutil.rmtree(bag)
     p = _play(ros_env, str(bag))
     assert p.returncode == 2 and "not found: the path does not exist" in p.stderr, p.stderr
+
+
+PUBLISH_BIG = """
+import sys, time
+import rclpy
+from std_msgs.msg import String
+from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
+rclpy.init()
+node = rclpy.create_node("big_publisher")
+pub = node.create_publisher(String, "/big", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                                                       history=HistoryPolicy.KEEP_LAST))
+msg = String(data="x" * 65536)
+end = time.monotonic() + float(sys.argv[1])
+while time.monotonic() < end:
+    pub.publish(msg)
+    rclpy.spin_once(node, timeout_sec=0.005)
+"""
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Any:
+    """A 2 MB tmpfs mounted by the test under ``tmp_path`` (skipped where mounting is refused); unmounted after."""
+    mnt = tmp_path / "small_disk"
+    mnt.mkdir()
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True,
+                          text=True)
+    if proc.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (needs CAP_SYS_ADMIN): {proc.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_record_on_a_full_disk(ros_python, small_disk, storage) -> None:  # type: ignore[no-untyped-def]
+    """``clm record`` filling its disk: one line, exit 1, nothing left that looks like a bag (issue 26.5)."""
+    ros_python.spawn(PUBLISH_BIG, ["120"], name="big_publisher")
+    out = small_disk / "bag"
+    proc = subprocess.run([sys.executable, "-m", "clm_core.cli", "record", "/big:std_msgs/msg/String", "--out",
+                           str(out), "--storage", storage, "--duration", "90"], env=ros_python.env,
+                          capture_output=True, text=True, timeout=300)
+    print(proc.stderr.strip()[-400:])
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert lines[0].startswith(f"clm record: error: writing '{out}' failed after ") and "partial bag was removed" \
+        in lines[0], lines
+    assert "Traceback" not in proc.stderr and list(small_disk.iterdir()) == [], list(small_disk.iterdir())

@@ -238,7 +238,9 @@ def client_factory(ros_python, ros_domain_id, monkeypatch) -> Iterator[Callable[
 
 
 def _start_calibration_node(ros_python, *args: str):  # type: ignore[no-untyped-def]
-    return ros_python.spawn(CAL_NODE, ["--ros-args", *args] if args else [], name="calibration_node")
+    """The node in its own process, reading the shipped bags and the test's directory (its working directory)."""
+    roots = ["-p", f"allowed_roots:={REPO / 'bags'},."]
+    return ros_python.spawn(CAL_NODE, ["--ros-args", *roots, *args], name="calibration_node")
 
 
 def _check_aborted(status: int, res: Any, *fragments: str) -> None:

@@ -165,3 +165,19 @@ def test_log_lines_are_bounded(ros_python, ros_domain_id) -> None:  # type: igno
         drv.wait_for(lambda: drv.latest_diagnostics().get("rejected.unknown_id") == "1", 20, "the rejection")
     lines = [ln for ln in run.err.splitlines() if "unknown_id" in ln]
     assert lines and all(len(ln) < 600 for ln in lines), [len(ln) for ln in lines]
+
+
+def test_unbounded_override_range_refused_at_start(ros_python, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A parameter file whose override range has no bound: the node refuses it at start with the bound, in one
+    line, exit 2 (issue 26.7: it took the node to 2.96 GB in 4 s)."""
+    import yaml
+
+    from clm_core.params import MAX_OVERRIDE_SLEEPERS, load_model
+
+    f = tmp_path / "unbounded.yaml"
+    f.write_text(yaml.safe_dump({**load_model("mevergnies", "mevergnies", "clm").to_dict(),
+                                 "overrides": [{"from": 0, "to": 10**8, "kb": 4.7e6}]}))
+    r = ros_python.run(NODE_SCRIPT, ["--ros-args", "-p", f"params_file:={f}"], name="track_unbounded", check=False,
+                       timeout=240)
+    assert r.returncode == 2 and "MemoryError" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert f"spans 100000001 sleepers: at most {MAX_OVERRIDE_SLEEPERS} sleepers" in r.stderr, r.stderr

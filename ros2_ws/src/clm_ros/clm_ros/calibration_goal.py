@@ -7,23 +7,109 @@ as YAML): :class:`CalibrationRequest`. One outcome type,
 (:func:`action_result`, :func:`service_response`). No physics here: the
 options go to :func:`clm_core.calibration.calibrate` as they are, which
 validates them.
+
+Which files a request may make the node read (:func:`check_paths`): the bag,
+the base parameter file (``params``) and the channel map (``channels``) must
+lie under one of the directories of the node's ``allowed_roots`` parameter
+(after resolving symbolic links and ``..``), and be regular files (a bag
+directory: holding only regular files and directories), so a goal can neither
+read any file of the machine nor block the node on a FIFO or a device.
+Refusals name the path and the rule, never the file's contents.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+import os
+import stat
+import sys
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import yaml
 
 from clm_core.calibration import CalibrationError, CalibrationOptions, CalibrationResult, SoilFit
 from clm_core.io.files import dumps_json
+from clm_core.settings import Setting
 from clm_ros.calibration_push import PushOutcome, one_line
 
 #: Terminal states of a calibration (the action's SUCCEEDED, ABORTED, CANCELED).
 SUCCEEDED, ABORTED, CANCELED = "succeeded", "aborted", "canceled"
+
+ALLOWED_ROOTS: Setting[str] = Setting(
+    "allowed_roots", str, ".", "-", "directories (comma-separated) under which a goal's bag, parameter file and "
+    "channel map may lie ('.': the node's working directory)", read_only=True)
+
+
+def parse_roots(text: str) -> tuple[Path, ...]:
+    """The directories of ``allowed_roots`` (comma-separated), resolved (``.``: the working directory).
+
+    Raises
+    ------
+    ValueError
+        No directory given, or one that is not an existing directory.
+    """
+    roots: list[Path] = []
+    for item in (t.strip() for t in text.split(",")):
+        if not item:
+            continue
+        root = Path(item).expanduser().resolve()
+        if not root.is_dir():
+            raise ValueError(f"allowed_roots: {item!r} is not an existing directory")
+        roots.append(root)
+    if not roots:
+        raise ValueError("allowed_roots is empty: give the directories (comma-separated) the node may read from")
+    return tuple(roots)
+
+
+def _regular(path: Path, what: str) -> str:
+    """'' when ``path`` is a regular file (not following a last symbolic link out), else why not."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        return f"{what} {str(path)!r} cannot be read ({exc.strerror})"
+    if not stat.S_ISREG(mode):
+        return f"{what} {str(path)!r} is not a regular file (a FIFO, device or socket is never read)"
+    return ""
+
+
+def _allowed(raw: str, roots: Sequence[Path], what: str, directory_ok: bool) -> str:
+    """'' when the file or bag ``raw`` lies under one of ``roots`` and is safe to read, else why not."""
+    path = Path(raw).expanduser().resolve()
+    if not any(path == r or path.is_relative_to(r) for r in roots):
+        return (f"{what} {raw!r} is outside the directories this node may read (allowed_roots: "
+                f"{', '.join(map(str, roots))})")
+    if not path.exists():
+        return f"{what} {raw!r} does not exist (as seen by the node, cwd {Path.cwd()})"
+    if directory_ok and path.is_dir():
+        try:
+            entries = list(path.iterdir())
+        except OSError as exc:
+            return f"{what} {raw!r} cannot be listed ({exc.strerror})"
+        for entry in entries:
+            if not entry.is_dir() and not stat.S_ISREG(entry.stat().st_mode if entry.exists() else 0):
+                return f"{what} {raw!r} holds {entry.name!r}, which is not a regular file (never read)"
+        return ""
+    return _regular(path, what)
+
+
+def check_paths(request: CalibrationRequest, roots: Sequence[Path]) -> str:
+    """Why the request may not be run ('' if it may): its bag, parameter file or channel map lies outside
+    ``roots`` (the ``allowed_roots`` parameter) or is not a regular file (a bag directory: holds something else
+    than regular files and directories). The message names the path and the rule, never the file's contents."""
+    why = _allowed(request.bag, roots, "bag", directory_ok=True)
+    if why:
+        return why
+    opts = request.options
+    for key, what in (("params", "parameter file (params)"), ("channels", "channel map (channels)")):
+        value = getattr(opts, key, None) if isinstance(opts, CalibrationOptions) else None
+        if value:
+            why = _allowed(str(value), roots, what, directory_ok=False)
+            if why:
+                return why
+    return ""
 
 
 @dataclass(frozen=True)
@@ -129,20 +215,30 @@ def request_from_goal(goal: Any, default_method: str) -> CalibrationRequest:
     """The request of a ``Calibrate`` action goal (never raises: invalid options set ``error``)."""
     method = goal.method.strip() or default_method
     bag = goal.bag_path.strip()
-    try:
-        options: CalibrationOptions | str = goal_options(goal)
-        error = ""
-    except CalibrationError as exc:
-        options, error = "", f"calibration failed: {exc}"
+    options, error = _parsed(lambda: goal_options(goal))
     return CalibrationRequest(bag=bag, method=method, options=options, allow_partial=bool(goal.allow_partial),
                               push=bool(goal.push_to_node), target=goal.target_node, error=error)
 
 
+def _parsed(parse: Any) -> tuple[CalibrationOptions | str, str]:
+    """``(options, '')`` from ``parse()``, or ``('', why)``: any failure of the options is the request's error."""
+    try:
+        return parse(), ""
+    except CalibrationError as exc:
+        return "", f"calibration failed: {exc}"
+    except RecursionError:
+        return "", (f"calibration failed: options_yaml is nested too deeply (Python's recursion limit, "
+                    f"{sys.getrecursionlimit()}, reached while reading it)")
+    except Exception as exc:  # anything else a hostile text can trigger: the goal is refused with it
+        return "", f"calibration failed: invalid options ({type(exc).__name__}: {exc})"
+
+
 def request_from_service(request: Any, default_method: str) -> CalibrationRequest:
-    """The request of a ``Calibrate`` service call (options as YAML text, validated when run)."""
+    """The request of a ``Calibrate`` service call (options as YAML text, validated here; never raises)."""
+    options, error = _parsed(lambda: CalibrationOptions.from_yaml(request.options_yaml))
     return CalibrationRequest(bag=request.bag_path.strip(), method=request.method.strip() or default_method,
-                              options=request.options_yaml, push=bool(request.push_to_node),
-                              target=request.target_node)
+                              options=options, push=bool(request.push_to_node), target=request.target_node,
+                              error=error)
 
 
 def fit_message(result: CalibrationResult) -> str:

@@ -35,7 +35,19 @@ ACCEPTED and gets a ``queued`` feedback. At most ``max_queued`` wait: a goal
 arriving when the queue is full is rejected (logged, counted in
 ``/diagnostics``), a service call is answered at once with ``success =
 false`` and a message starting with ``busy``. ``max_queued = 0``: no queue,
-reject while busy.
+reject while busy. A burst (goals, cancels, result requests, service calls
+sent at once) is taken whole up to :data:`REQUEST_DEPTH` per queue: each one
+is answered, or refused and counted (issue 26.1; rclpy's default depth of 10
+dropped the rest unanswered).
+
+**What a goal may read.** The bag, ``params_file`` and ``channels`` must lie
+under a directory of ``allowed_roots`` and be regular files (a bag directory
+holds only regular files and directories): a goal cannot make the node read
+any file of the machine, nor block it on a FIFO or a device; a refusal names
+the path and the rule, never the file's contents
+(:func:`clm_ros.calibration_goal.check_paths`). Every failure of a goal,
+invalid or hostile options included (YAML nested too deeply for the parser),
+aborts it with its reason.
 
 **Cancel.** A running fit stops at its next progress report, at the latest
 after the model evaluation under way (each evaluation of a fit reports; the
@@ -80,8 +92,13 @@ push_timeout : float
     How long a push waits for the target's parameter service and its answer [s] (default 10).
 max_queued : int
     Goals and requests that may wait while one runs (default 4).
+allowed_roots : str
+    Directories (comma-separated) under which bags, parameter files and
+    channel maps may lie (default ``.``, the node's working directory; read-only).
 diagnostics_period : float
-    Period of ``/diagnostics`` [s] (default 1; read-only).
+    Period of ``/diagnostics`` [s] (default 1; read-only), on the steady clock:
+    they go on with ``use_sim_time`` and no ``/clock``, and so does the check of
+    queued goals for a cancel.
 
 Run: ``python -m clm_ros.calibration_node`` or the console script
 ``calibration_node`` (``ros2 run clm_ros calibration_node`` in a full ROS
@@ -108,8 +125,10 @@ from clm_msgs.srv import Calibrate
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 
 from clm_core.calibration import BagError, CalibrationError, calibrate
@@ -118,13 +137,16 @@ from clm_core.errors import ClmError
 from clm_core.settings import Setting
 from clm_ros.calibration_goal import (
     ABORTED,
+    ALLOWED_ROOTS,
     CANCELED,
     SUCCEEDED,
     CalibrationOutcome,
     CalibrationRequest,
     action_result,
+    check_paths,
     failed,
     fit_message,
+    parse_roots,
     request_from_goal,
     request_from_service,
     service_response,
@@ -162,6 +184,19 @@ DEFAULT_METHOD: Setting[str] = Setting("default_method", str, "impact", "-",
                                        "method used when a goal leaves 'method' empty", choices=METHODS)
 MAX_QUEUED: Setting[int] = Setting("max_queued", int, 4, "-", "goals that may wait while one runs (0: reject "
                                    "while busy)", minimum=0, maximum=1000)
+
+#: History depth of the action's services (goal, cancel, result), its feedback and the ``Calibrate`` service, on
+#: both sides of each (request and response). rclpy's default is 10: of a burst of goals, cancels, result requests
+#: or service calls sent faster than the executor takes them, the middleware kept the last 10 and dropped the rest
+#: unanswered (issue 26.1: 10 of 20 and 10 of 50 service calls answered, 12 of 400 cancels). A burst of up to this
+#: many is now taken whole and each one answered (or refused, counted); a client that sends bursts needs the same
+#: depth on its side (:func:`request_qos`) or its own middleware may drop the answers.
+REQUEST_DEPTH = 1000
+
+
+def request_qos() -> QoSProfile:
+    """QoS of the action's and the service's requests and answers: reliable, keep last :data:`REQUEST_DEPTH`."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=REQUEST_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class CalibrationStopped(BaseException):
@@ -207,9 +242,10 @@ class CalibrationNode(Node):
     def __init__(self, signals: StopSignals | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._signals = signals  # the process's SIGINT/SIGTERM (clm_ros.node_main), for the shutdown's log
-        declare_settings(self, (DEFAULT_METHOD, MAX_QUEUED, "push_timeout", "diagnostics_period"))
+        declare_settings(self, (DEFAULT_METHOD, MAX_QUEUED, ALLOWED_ROOTS, "push_timeout", "diagnostics_period"))
         method = str(self.get_parameter("default_method").value)
         DEFAULT_METHOD.check(method)  # the values at start (later changes are checked by declare_settings)
+        self._roots = parse_roots(str(self.get_parameter("allowed_roots").value))  # read-only: fixed at start
 
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -228,18 +264,23 @@ class CalibrationNode(Node):
         self.action_server = ActionServer(
             self, CalibrateAction, ACTION_NAME, self._execute_goal,
             goal_callback=self._on_goal, handle_accepted_callback=self._on_accepted,
-            cancel_callback=self._on_cancel,
+            cancel_callback=self._on_cancel, goal_service_qos_profile=request_qos(),
+            result_service_qos_profile=request_qos(), cancel_service_qos_profile=request_qos(),
+            feedback_pub_qos_profile=request_qos(),
         )
-        self.service = self.create_service(Calibrate, SERVICE_NAME, self._serve)
+        self.service = self.create_service(Calibrate, SERVICE_NAME, self._serve, qos_profile=request_qos())
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # both timers on the steady clock: with use_sim_time and no /clock, ROS time stands still and timers of
+        # the node's default clock would never fire (no diagnostics, a queued goal's cancel never seen)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._diag_timer = self.create_timer(float(self.get_parameter("diagnostics_period").value),
-                                             self.publish_diagnostics)
-        self._queue_timer = self.create_timer(QUEUE_POLL_S, self._pump)
+                                             self.publish_diagnostics, clock=steady)
+        self._queue_timer = self.create_timer(QUEUE_POLL_S, self._pump, clock=steady)
         self._worker = threading.Thread(target=self._work, name="calibration", daemon=True)
         self._worker.start()
         self.get_logger().info(
             f"ready: action and service {self.service.service_name} (methods {', '.join(METHODS)}, "
-            f"up to {self._max_queued()} queued)"
+            f"up to {self._max_queued()} queued; files read under {', '.join(map(str, self._roots))})"
         )
 
     # ------------------------------------------------------------------ admission and queue
@@ -273,7 +314,12 @@ class CalibrationNode(Node):
 
     def _on_accepted(self, goal: ServerGoalHandle) -> None:
         label = bytes(goal.goal_id.uuid).hex()[:8]
-        job = _Job(request_from_goal(goal.request, self._default_method()), goal, label)
+        try:
+            request = request_from_goal(goal.request, self._default_method())
+        except BaseException as exc:  # an accepted goal is always registered, so that it is always answered
+            request = CalibrationRequest(bag=str(goal.request.bag_path), method=str(goal.request.method),
+                                         error=f"invalid goal: {type(exc).__name__}: {exc}")
+        job = _Job(request, goal, label)
         with self._lock:
             self._goals[bytes(goal.goal_id.uuid)] = job
             self._counts["accepted"] += 1
@@ -344,7 +390,7 @@ class CalibrationNode(Node):
             if reason:
                 self._counts["rejected"] += 1
             else:
-                job = _Job(request_from_service(request, self._default_method()), None, label)
+                job = _Job(request_from_service(request, self._default_method()), None, label)  # never raises
                 self._counts["accepted"] += 1
                 self._queue.append(job)
         if reason:
@@ -435,9 +481,10 @@ class CalibrationNode(Node):
             return failed(ABORTED, "bag_path is empty: give the bag directory or .mcap/.db3 file", req)
         if req.method not in METHODS:
             return failed(ABORTED, f"method = {req.method!r}: must be one of {', '.join(METHODS)}", req)
+        refused = check_paths(req, self._roots)  # under allowed_roots, exists, regular files only (no FIFO)
+        if refused:
+            return failed(ABORTED, refused, req)
         path = Path(req.bag).expanduser()
-        if not path.exists():
-            return failed(ABORTED, f"bag {req.bag!r} does not exist (as seen by the node, cwd {Path.cwd()})", req)
         share = FIT_SHARE_WITH_PUSH if req.push else 1.0
         self.get_logger().info(f"{job.label}: calibrating: {req.method} on {req.bag!r}")
         self.publish_diagnostics()
@@ -462,6 +509,9 @@ class CalibrationNode(Node):
             return failed(ABORTED, f"bag refused: {exc}", req)
         except ClmError as exc:  # CalibrationError (options, channel map, band), ParameterError
             return failed(ABORTED, f"calibration failed: {exc}", req)
+        except RecursionError:
+            return failed(ABORTED, "calibration failed: the options are nested too deeply (Python's recursion "
+                          f"limit, {sys.getrecursionlimit()}, reached while reading them)", req)
         except Exception as exc:  # the node must survive anything a bag can trigger
             self.get_logger().error(traceback.format_exc())
             return failed(ABORTED, f"calibration failed with an unexpected {type(exc).__name__}: {exc} "

@@ -122,6 +122,8 @@ class LagSummary:
     """Age of the oldest of them [s] (NaN: none)."""
     reason: str = ""
     """Why the lag is not available ('' when it is)."""
+    min: float = float("nan")
+    """Smallest lag of the period [s]: negative when the node's clock is behind the stamps."""
 
     @property
     def available(self) -> bool:
@@ -185,7 +187,7 @@ class LagMonitor:
             return LagSummary(0, nan, nan, nan, nan, waiting, oldest, self._reason)
         return LagSummary(
             int(lag.size), float(np.median(lag)), float(np.percentile(lag, 99)), float(lag.max()),
-            float(np.mean(lag > max_feedback_delay)), waiting, oldest,
+            float(np.mean(lag > max_feedback_delay)), waiting, oldest, min=float(lag.min()),
         )
 
 
@@ -194,7 +196,9 @@ def lag_level(lag: LagSummary, lag_budget: float, max_feedback_delay: float) -> 
 
     ERROR: more than 1 % of the period's answers, or the oldest frame still
     waiting, older than ``max_feedback_delay`` [s] (too late to be feedback);
-    WARN: the largest lag above ``lag_budget`` [s]; OK otherwise (also idle).
+    WARN: the largest lag above ``lag_budget`` [s], or the smallest below
+    ``-lag_budget`` (the node's clock behind the stamps: a ``/clock`` behind or
+    stopped; issue 26.9: -10 s was reported OK); OK otherwise (also idle).
     """
     if not lag.available:
         return OK, f"running; lag unavailable: {lag.reason}"
@@ -208,6 +212,9 @@ def lag_level(lag: LagSummary, lag_budget: float, max_feedback_delay: float) -> 
                        f"(max_feedback_delay = {1e3 * max_feedback_delay:g} ms)")
     if worst > lag_budget:
         return WARN, f"lag {1e3 * worst:.2f} ms over lag_budget = {1e3 * lag_budget:g} ms"
+    if lag.answers and lag.min < -lag_budget:  # an answer published before its stamp's time: the clock lags
+        return WARN, (f"negative lag {1e3 * lag.min:.1f} ms: the node's clock is behind the wheel-load stamps "
+                      "(sim time: /clock behind or stopped; else the sender's clock is ahead); lags unreliable")
     return OK, "running" if lag.answers else "running; no wheel loads in the last period"
 
 
@@ -224,6 +231,7 @@ def lag_values(lag: LagSummary) -> dict[str, Any]:
         "lag_median_s": fmt(lag.median),
         "lag_p99_s": fmt(lag.p99),
         "lag_max_s": fmt(lag.max),
+        "lag_min_s": fmt(lag.min),
         "late_fraction": fmt(lag.late_fraction),
         "waiting": lag.waiting,
         "oldest_waiting_s": fmt(lag.oldest_waiting),

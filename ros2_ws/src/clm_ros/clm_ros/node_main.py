@@ -13,6 +13,9 @@ vehicle and a track node on one executor, :mod:`clm_ros.fleet_pair`):
   (``KeyboardInterrupt``, nothing is half-done then); once the executor
   exists (rclpy's EventsExecutor installs handlers of its own when it is
   created; ours replace them) a signal only sets a flag;
+- before the participant exists, the stale Fast DDS shared-memory ports of
+  the node's domain (left locked by a process killed with SIGKILL; no live
+  process maps them) are removed, said in one line (:mod:`clm_ros.shm`);
 - Fast DDS publishes synchronously unless ``RMW_FASTRTPS_PUBLICATION_MODE``
   says otherwise (:data:`PUBLICATION_MODE`), with the profile
   :data:`FASTDDS_PROFILE` unless the environment names one;
@@ -89,6 +92,7 @@ from rclpy.utilities import get_default_context
 from clm_core.errors import ClmError
 from clm_ros.diagnostics import bounded
 from clm_ros.realtime import apply_fifo
+from clm_ros.shm import clean_stale_ports, domain_of_environment
 
 __all__ = ["FASTDDS_PROFILE", "PUBLICATION_MODE", "START_ERRORS", "StopSignals", "exit_process", "freeze_heap",
            "run_node"]
@@ -198,6 +202,10 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
     nodes: tuple[Any, ...] = ()
     executor: Executor | None = None
     code = 0
+    stale = clean_stale_ports()  # before the participant opens the domain's ports (issue 26.3)
+    if stale:
+        print(f"{name}: removed {len(stale)} stale Fast DDS shared-memory file(s) of domain {domain_of_environment()} "
+              f"(no live process mapped them): {bounded(', '.join(stale), 200)}", file=sys.stderr)
     try:
         rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
         try:

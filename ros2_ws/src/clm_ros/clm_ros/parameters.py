@@ -26,6 +26,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -133,7 +134,11 @@ def _converted(p: Parameter, floats: set[str], texts: set[str]) -> Parameter:
 
 def _pre_set(node: Node, params: list[Parameter]) -> list[Parameter]:
     """INTEGER values of real-valued parameters become DOUBLE, numbers of list-valued ones STRING
-    (before rclpy's type check)."""
+    (before rclpy's type check). A parameter the node does not have is refused here, by name: rclpy's own check
+    names an empty list ("undeclared parameter(s): []", its generator is spent by ``any`` before it is listed)."""
+    unknown = [p.name for p in params if not node.has_parameter(p.name)]
+    if unknown and not getattr(node, "_allow_undeclared_parameters", False):
+        raise ParameterNotDeclaredException(unknown)
     floats: set[str] = getattr(node, _FLOATS_ATTR)
     texts: set[str] = getattr(node, _TEXTS_ATTR)
     return [_converted(p, floats, texts) for p in params]

@@ -32,8 +32,14 @@ States and what the node does in each:
 
 With ``autostart`` (default true) it configures and activates itself.
 
-The data path (one executor callback): take the message and everything
-else waiting in the subscription (drain), decode with the numpy CDR codec
+One stream per topic: the messages are taken with their publisher's GID
+(:mod:`clm_ros.track_input`, :mod:`clm_ros.sources`); the first publisher
+heard is the stream's source, a second publisher's messages are refused
+(``rejected.second_source``, ``/diagnostics`` WARN naming it) until the source
+leaves the graph, then the next publisher heard takes over (a new stream).
+
+The data path (one executor task): take everything waiting in the
+subscription (drain), decode with the numpy CDR codec
 (:mod:`clm_core.io.messages`), integrate through all of them in one go
 (``process_batch``), encode both answers per accepted message and publish
 the serialized bytes, in order. A malformed message is a rejection
@@ -50,19 +56,15 @@ import gc
 import math
 import sys
 import time
-import traceback
 from typing import Any
 
 import numpy as np
-from clm_msgs.msg import SleeperResponse, WheelLoads, WheelRailResponse
+from clm_msgs.msg import SleeperResponse, WheelRailResponse
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
-from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
-from rclpy.qos import ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
 from clm_core.errors import ClmError
@@ -88,15 +90,14 @@ from clm_ros.diagnostics import (
     lag_values,
 )
 from clm_ros.latched import TRACK_STATUS, follow, matched_readers
-from clm_ros.node_main import StopSignals, run_node
+from clm_ros.node_main import StopSignals, freeze_heap, run_node
 from clm_ros.parameters import declare_model_parameters, declare_settings
 from clm_ros.realtime import NOT_APPLIED, Scheduling
+from clm_ros.sources import GidSubscription, Sources
+from clm_ros.track_input import TrackInput
 from clm_ros.track_views import MonitoredSleepers, monitored_indices, window_markers
 
 NODE_NAME = "clm_track_node"
-
-#: Frames processed in one go at most; between chunks the answers go out and a stop request is honoured.
-CHUNK = 500
 
 #: Seconds the node waits, before its answer publishers go (cleanup, shutdown, a stop signal), for every reader
 #: to acknowledge the answers already published: a writer destroyed earlier takes the samples still in flight
@@ -109,7 +110,7 @@ FLUSH_TIMEOUT = 0.5
 _MODEL_SETTINGS = ("max_gap", "accept_new_wheels", *ONLINE_POLICY)
 
 
-class TrackNode(LifecycleNode):
+class TrackNode(TrackInput):
     """Lifecycle node running the streaming track–soil model on wheel-load messages.
 
     Parameters
@@ -149,7 +150,9 @@ class TrackNode(LifecycleNode):
         self._pub_mon: Any = None
         self._pub_markers: Any = None
         self._monitor = MonitoredSleepers(np.zeros(0, dtype=np.int64), 1.0)
-        self._sub: Any = None
+        self._sub: GidSubscription | None = None
+        self._sources = Sources()  # which publisher of wheel_loads is the stream (clm_ros.sources)
+        self._second_seen = 0
         self._accepting = False
         self._reliability = ""
         self._requested_reliability: Any = None
@@ -207,21 +210,6 @@ class TrackNode(LifecycleNode):
                 return response
 
         srv.callback = guarded
-
-    def _log(self, level: str, text: str, once: str | None = None) -> None:
-        """Log a bounded line (``once``: a key logged only the first time)."""
-        if once is not None:
-            if once in self._logged:
-                return
-            self._logged.add(once)
-        logger, line = self.get_logger(), bounded(text)
-        # one call site per severity: rclpy's logger refuses another severity from the same line
-        if level == "error":
-            logger.error(line)
-        elif level == "warning":
-            logger.warning(line)
-        else:
-            logger.info(line)
 
     def _now_ns(self) -> int:
         """The clock the stamps are read on [ns]: sim time with use_sim_time (0 until /clock), else system time
@@ -353,12 +341,12 @@ class TrackNode(LifecycleNode):
         ret = super().on_activate(state)
         if ret != TransitionCallbackReturn.SUCCESS:
             return ret
-        gc.collect()
-        gc.freeze()  # what exists now (model, kernels, modules) is never scanned again: shorter collections
+        freeze_heap()  # what exists now (model, kernels, modules) is not scanned while active: shorter collections
         self._subscribe()
         self._accepting = True
         self._state = "active"
-        self._log("info", f"active: subscribed to {self._sub.topic_name} ({self._reliability})")
+        topic = self._sub.topic_name if self._sub is not None else "wheel_loads"
+        self._log("info", f"active: subscribed to {topic} ({self._reliability})")
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
@@ -392,130 +380,15 @@ class TrackNode(LifecycleNode):
                 setattr(self, name, None)
         self.model = None
         self._last_response = None
+        # the model frozen at activation would never be collected (its reference cycles stayed for good: ~200 kB
+        # a configure / activate / cleanup cycle, issue 26.8); back under the collector, the next activation
+        # freezes what lives then
+        gc.unfreeze()
+        gc.collect()
         self._state = state or "unconfigured"
         return TransitionCallbackReturn.SUCCESS
 
-    # ------------------------------------------------------------------ subscription (QoS, peers)
-
-    def _capture_qos(self, profile: Any) -> SetParametersResult:
-        self._requested_reliability = profile.reliability
-        return SetParametersResult(successful=True)
-
-    def _subscribe(self) -> None:
-        """Subscribe to wheel_loads (raw bytes) with the QoS after the user's overrides (module clm_ros.qos)."""
-        opts = qos.overrides(callback=self._capture_qos)
-        events = SubscriptionEventCallbacks(incompatible_qos=self._on_incompatible_qos, message_lost=self._on_lost)
-        self._sub = self.create_subscription(WheelLoads, "wheel_loads", self._on_wheel_loads, qos.wheel_loads_qos(),
-                                             qos_overriding_options=opts, event_callbacks=events, raw=True)
-        pubs = self.get_publishers_info_by_topic(self._sub.topic_name)
-        self._reliability = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
-        self._recreate = False
-
-    def _unsubscribe(self) -> None:
-        """Stop accepting; take and count what is queued (not accepted: no answer owed); destroy."""
-        self._accepting = False
-        sub, self._sub = self._sub, None
-        if sub is None:
-            return
-        n = 0
-        try:
-            while sub.handle.take_message(WheelLoads, True) is not None:
-                n += 1
-        except Exception as exc:  # the subscription goes anyway
-            self._log("warning", f"discarding queued wheel loads: {exc}")
-        self.counters.received += n
-        self.counters.not_accepted += n
-        if n:
-            self._log("info", f"{n} queued wheel-load message(s) not accepted (node no longer active)")
-        self.destroy_subscription(sub)
-
-    def _on_incompatible_qos(self, event: Any) -> None:
-        self._log("warning", f"wheel_loads: a publisher offers an incompatible QoS (policy "
-                  f"{event.last_policy_kind}); subscription reliability {self._reliability}", once="incompatible")
-        self._recreate = True
-
-    def _on_lost(self, event: Any) -> None:
-        self.counters.lost += int(event.total_count_change)
-
-    def _housekeeping(self) -> None:
-        """Every 0.25 s on the executor thread: follow the publishers (QoS resolution, peers gone and back)."""
-        markers = self._pub_markers
-        self._markers_watched = markers is not None and markers.get_subscription_count() > 0
-        sub = self._sub
-        if sub is None:
-            self._peers = (-1, -1)
-            self._matched_publishers = 0
-            return
-        pubs = self.get_publishers_info_by_topic(sub.topic_name)
-        self._matched_publishers = sub.get_publisher_count()
-        readers = self._pub_w.get_subscription_count() if self._pub_w is not None else 0
-        peers = (len(pubs), readers)
-        if peers != self._peers:
-            self._peers_changed(self._peers, peers)
-            self._peers = peers
-        wanted = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
-        if self._recreate or wanted != self._reliability:
-            if self._requested_reliability != ReliabilityPolicy.BEST_AVAILABLE:
-                self._recreate = False
-                return
-            old = self._reliability
-            self._replace_subscription()
-            self._log("info", f"wheel_loads: subscription re-created, reliability {old} -> {self._reliability}")
-
-    def _peers_changed(self, old: tuple[int, int], new: tuple[int, int]) -> None:
-        """Log who came and went (a peer that dies is seen when its middleware lease runs out)."""
-        if old[0] > 0 and new[0] == 0:
-            self._new_stream = self._peer_lost = True  # every source left: the next message starts a new stream
-            self._log("warning", "wheel_loads: no publisher any more (peer gone); waiting for it to return")
-        elif self._peer_lost and old[0] == 0 and new[0] > 0:
-            self._peer_lost = False
-            self._log("info", f"wheel_loads: {new[0]} publisher(s) back")
-        elif old[0] >= 0 and new[0] != old[0]:
-            self._log("info", f"wheel_loads: {old[0]} -> {new[0]} publisher(s)")
-        if old[1] > 0 and new[1] == 0:
-            self._log("warning", "wheel_rail_response: no reader any more (peer gone)")
-        elif old[1] >= 0 and new[1] != old[1]:
-            self._log("info", f"wheel_rail_response: {old[1]} -> {new[1]} reader(s)")
-
-    def _replace_subscription(self) -> None:
-        """A new subscription (QoS resolved anew); what the old one holds is answered first."""
-        old = self._sub
-        self._drain(old, [])
-        self._subscribe()
-        self._drain(old, [])
-        self.destroy_subscription(old)
-
     # ------------------------------------------------------------------ data path
-
-    def _on_wheel_loads(self, first: bytes) -> None:
-        """Executor callback: this message and everything else waiting, answered in order."""
-        try:
-            if not self._accepting or self._sub is None:
-                self.counters.received += 1
-                self.counters.not_accepted += 1
-                return
-            self._drain(self._sub, [first])
-        except Exception as exc:  # never let one message end the node
-            self.counters.internal_errors += 1
-            tb = traceback.format_exc(limit=3).strip().splitlines()
-            self._log("error", f"internal error on a wheel-load message (counted): {exc!r}; "
-                      f"{' | '.join(tb[-4:])}", once="internal_error")
-
-    def _drain(self, sub: Any, raws: list[bytes]) -> None:
-        """Take everything waiting in ``sub`` after ``raws`` and answer it, in chunks of at most CHUNK."""
-        take = sub.handle.take_message
-        while True:
-            got = take(WheelLoads, True)
-            if got is None:
-                break
-            raws.append(got[0])
-            if len(raws) >= CHUNK:
-                self._answer(raws)
-                raws = []
-                if self._stop.requested() or not self._accepting:
-                    return
-        if raws:
-            self._answer(raws)
 
     def _decode(self, raws: list[bytes]) -> list[WheelFrame]:
         """Frames of the messages; an undecodable one is a rejection (``malformed``), counted by the model."""
@@ -545,11 +418,6 @@ class TrackNode(LifecycleNode):
             self._log("error", f"internal error on {len(frames)} wheel-load message(s) (counted): {exc!r}",
                       once="internal_error")
             return None
-
-    def _reject(self, exc: Rejected) -> None:
-        cause = exc.reason.value
-        self._log("warning", f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): "
-                  f"{exc}", once=cause)
 
     def _encode(self, r: ResponseFrame) -> tuple[bytes, bytes]:
         """Both answers to a response, serialized, stamped with the input's stamp."""
@@ -633,9 +501,15 @@ class TrackNode(LifecycleNode):
         state = self._state
         rejected = self.stats.rejected_total + self.counters.internal_errors
         new_rejections, self._rejected_seen = rejected - self._rejected_seen, rejected
+        second = sum(self._sources.refused.values())
+        new_second, self._second_seen = second - self._second_seen, second
         if state == "active":
             level, message = lag_level(lag, budget, late)
-            if level == OK and new_rejections:
+            if new_second and level == OK:
+                level, message = WARN, (f"second wheel-load source: {new_second} message(s) of "
+                                        f"{len(self._sources.refused)} other publisher(s) refused in the last "
+                                        f"period; answering only {self._sources.values()['wheel_load_source']}")
+            elif level == OK and new_rejections:
                 level, message = WARN, f"{new_rejections} wheel-load message(s) rejected in the last period"
         elif state == "finalized":
             level, message = STALE, "finalized: not answering"
@@ -654,6 +528,7 @@ class TrackNode(LifecycleNode):
             "data_path_cpu_us_per_message": f"{1e6 * d_cpu / d_msgs:.1f}" if d_msgs else "nan",
             "wheel_load_publishers": max(self._peers[0], 0),
             "wheel_load_publishers_matched": self._matched_publishers,
+            **self._sources.values(),
             "answer_readers": max(self._peers[1], 0),
             "wheel_loads_reliability": self._reliability or "none",
             "scheduling": self.scheduling.text,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import sys
 import time
 from typing import Any
 
@@ -69,17 +70,36 @@ def run_record(args: argparse.Namespace) -> int:
         rec = BagRecorder(node, args.out, topics, args.storage)
         first = next(iter(topics))
         start = time.monotonic()
-        while not stop["now"]:
-            rclpy.spin_once(node, timeout_sec=0.05)
-            if args.duration is not None and time.monotonic() - start >= args.duration:
-                break
-            if args.count is not None and rec.counts[first] >= args.count:
-                break
-        print(json.dumps(rec.close()))
+        try:
+            while not stop["now"]:
+                rclpy.spin_once(node, timeout_sec=0.05)
+                if args.duration is not None and time.monotonic() - start >= args.duration:
+                    break
+                if args.count is not None and rec.counts[first] >= args.count:
+                    break
+            counts = rec.close()
+        except Exception as exc:  # a full disk (OSError ENOSPC, sqlite's "disk is full"), an I/O error
+            return _write_failed(rec, args.out, exc)
+        print(json.dumps(counts))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _write_failed(rec: Any, out: str, exc: Exception) -> int:
+    """The bag could not be written (full disk, I/O error): drop the partial bag, say so in one line; exit code 1.
+
+    A bag cut at a failed write is not readable (no index, no metadata; the mcap or sqlite file may end inside a
+    record), so nothing is left rather than a file that looks like a bag: neither ``out`` nor the hidden
+    ``.NAME.partial-*`` directory.
+    """
+    n = sum(rec.counts.values())
+    rec.abort()
+    why = " ".join(str(getattr(exc, "strerror", None) or exc).split())[:200]
+    print(f"clm record: error: writing {out!r} failed after {n} message(s): {why} ({type(exc).__name__}); "
+          "the partial bag was removed", file=sys.stderr)
+    return 1
 
 
 def run_play(args: argparse.Namespace) -> int:

@@ -1,0 +1,249 @@
+"""Wheel-load sources told apart by publisher: one stream per topic, a second publisher refused (issue 26.2).
+
+Two vehicles publishing on one ``wheel_loads`` topic on one clock look like
+one stream to the stamp rules (their stamps interleave, their wheel ids are the
+same): the model took both (800/800 accepted, answers off by ~100 % of the peak
+deflection). rclpy hands a subscription's messages to Python without the
+writer's identity, so the track node takes them itself:
+
+- :class:`GidSubscription`: the raw ``wheel_loads`` subscription, created by
+  rclpy as usual (QoS overrides, events) but hidden from the executor; its
+  messages are taken with ``rcl_take_serialized_message`` (through ctypes),
+  whose ``rmw_message_info_t`` carries the publisher's GID. The middleware's
+  "new message" callback is libc's ``eventfd_write`` (C, no Python: the
+  middleware calls it holding its reader's lock, and a Python callback there
+  would wait for the GIL while the executor thread, holding the GIL, waits in
+  rclpy for that lock: a deadlock, seen in the soak); a thread of the node
+  waits on that eventfd and hands the executor a task (``create_task``, thread
+  safe; one at a time) that takes what has arrived (rclpy's EventsExecutor
+  serves no guard condition).
+- :class:`Sources`: the first publisher heard is the stream's source; a
+  message of any other publisher is refused (cause ``second_source``,
+  counted, logged once); when the source leaves the graph, the next publisher
+  heard takes over (a new stream: the model's state restarts).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import threading
+from collections import Counter
+from collections.abc import Callable, Iterable
+from typing import Any
+
+__all__ = ["GID_BYTES", "GidSubscription", "Sources", "gid_text"]
+
+#: Bytes of an rmw GID (``RMW_GID_STORAGE_SIZE`` of ROS 2 Jazzy).
+GID_BYTES = 16
+#: ``RCL_RET_OK`` and ``RCL_RET_SUBSCRIPTION_TAKE_FAILED`` (nothing to take).
+_RCL_OK, _RCL_TAKE_FAILED = 0, 401
+
+
+class _Allocator(ctypes.Structure):
+    _fields_ = [("allocate", ctypes.c_void_p), ("deallocate", ctypes.c_void_p), ("reallocate", ctypes.c_void_p),
+                ("zero_allocate", ctypes.c_void_p), ("state", ctypes.c_void_p)]
+
+
+class _Bytes(ctypes.Structure):  # rcutils_uint8_array_t (rcl_serialized_message_t)
+    _fields_ = [("buffer", ctypes.POINTER(ctypes.c_uint8)), ("buffer_length", ctypes.c_size_t),
+                ("buffer_capacity", ctypes.c_size_t), ("allocator", _Allocator)]
+
+
+class _Gid(ctypes.Structure):  # rmw_gid_t
+    _fields_ = [("implementation_identifier", ctypes.c_char_p), ("data", ctypes.c_uint8 * GID_BYTES)]
+
+
+class _MessageInfo(ctypes.Structure):  # rmw_message_info_t
+    _fields_ = [("source_timestamp", ctypes.c_int64), ("received_timestamp", ctypes.c_int64),
+                ("publication_sequence_number", ctypes.c_uint64), ("reception_sequence_number", ctypes.c_uint64),
+                ("publisher_gid", _Gid), ("from_intra_process", ctypes.c_bool)]
+
+
+_EVENT_CALLBACK = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_size_t)  # rcl_event_callback_t
+
+
+def _library(name: str) -> ctypes.CDLL:
+    """A shared library of ROS already loaded by rclpy (its path from this process's memory map)."""
+    with open("/proc/self/maps", encoding="utf-8") as maps:
+        for line in maps:
+            path = line.split()[-1] if line.strip() else ""
+            if path.rsplit("/", 1)[-1] == name:
+                return ctypes.CDLL(path)
+    return ctypes.CDLL(name)
+
+
+_LIBS: dict[str, Any] = {}
+
+
+def _rcl() -> tuple[Any, Any]:
+    if not _LIBS:
+        rcl, rcutils = _library("librcl.so"), _library("librcutils.so")
+        rcutils.rcutils_get_default_allocator.restype = _Allocator
+        rcutils.rcutils_get_default_allocator.argtypes = []
+        rcutils.rcutils_uint8_array_init.argtypes = [ctypes.POINTER(_Bytes), ctypes.c_size_t,
+                                                      ctypes.POINTER(_Allocator)]
+        rcutils.rcutils_uint8_array_init.restype = ctypes.c_int
+        rcutils.rcutils_uint8_array_fini.argtypes = [ctypes.POINTER(_Bytes)]
+        rcutils.rcutils_uint8_array_fini.restype = ctypes.c_int
+        rcl.rcl_take_serialized_message.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Bytes),
+                                                    ctypes.POINTER(_MessageInfo), ctypes.c_void_p]
+        rcl.rcl_take_serialized_message.restype = ctypes.c_int
+        rcl.rcl_subscription_set_on_new_message_callback.argtypes = [ctypes.c_void_p, _EVENT_CALLBACK,
+                                                                     ctypes.c_void_p]
+        rcl.rcl_subscription_set_on_new_message_callback.restype = ctypes.c_int
+        _LIBS.update(rcl=rcl, rcutils=rcutils)
+    return _LIBS["rcl"], _LIBS["rcutils"]
+
+
+def gid_text(gid: bytes) -> str:
+    """A GID as short hex (the last 8 bytes: Fast DDS puts the host and process prefix first)."""
+    return gid[-8:].hex()
+
+
+class GidSubscription:
+    """A raw subscription taken with the publisher's GID, outside the executor (see the module docstring).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node that created ``sub``.
+    sub : rclpy.subscription.Subscription
+        A raw subscription just created by ``node`` (its callback is never called: the executor never sees it).
+    on_ready : callable
+        Called on the executor thread when messages have arrived (take them with :meth:`take`). The owner also
+        calls it now and then (a message that arrived before the node had an executor rang no one).
+    """
+
+    def __init__(self, node: Any, sub: Any, on_ready: Callable[[], None]) -> None:
+        self.node, self.sub = node, sub
+        node._subscriptions.remove(sub)  # hidden from the executor: only this object takes its messages
+        self._rcl, self._rcutils = _rcl()
+        self._buf = _Bytes()
+        alloc = self._rcutils.rcutils_get_default_allocator()
+        if self._rcutils.rcutils_uint8_array_init(ctypes.byref(self._buf), 4096, ctypes.byref(alloc)) != _RCL_OK:
+            raise MemoryError("cannot allocate the wheel-load buffer")
+        self._info = _MessageInfo()
+        self._on_ready = on_ready
+        self._pending = False
+        self.closed = False
+        # on arrival the middleware's thread calls eventfd_write(fd, n) (user_data = the fd): C only, no GIL
+        self._efd = os.eventfd(0, os.EFD_CLOEXEC)
+        libc = ctypes.CDLL(None)
+        self._callback = _EVENT_CALLBACK(ctypes.cast(libc.eventfd_write, ctypes.c_void_p).value)
+        self._thread = threading.Thread(target=self._doorbell, name="clm_wheel_loads_doorbell", daemon=True)
+        self._thread.start()
+        self._pointer = ctypes.c_void_p(sub.handle.pointer)
+        if self._rcl.rcl_subscription_set_on_new_message_callback(self._pointer, self._callback,
+                                                                  ctypes.c_void_p(self._efd)) != _RCL_OK:
+            raise RuntimeError("rcl_subscription_set_on_new_message_callback failed")
+
+    def _doorbell(self) -> None:
+        """Thread: wait on the eventfd (the GIL released), then hand the executor a task; until destroyed."""
+        while True:
+            try:
+                os.eventfd_read(self._efd)
+            except OSError:
+                return
+            if self.closed:
+                return
+            self._ring(None, 0)
+
+    def _ring(self, _user: Any, _count: int) -> None:
+        executor = self.node.executor
+        if self._pending or executor is None or self.closed:
+            return
+        self._pending = True
+        executor.create_task(self._serve)
+
+    def _serve(self) -> None:
+        self._pending = False  # first: a message arriving from now on rings again
+        if not self.closed:
+            self._on_ready()
+
+    @property
+    def topic_name(self) -> str:
+        return str(self.sub.topic_name)
+
+    def get_publisher_count(self) -> int:
+        return int(self.sub.get_publisher_count())
+
+    def take(self) -> tuple[bytes, bytes] | None:
+        """The next message (serialized bytes) and its publisher's GID, None when nothing is waiting."""
+        if self.closed:
+            return None
+        buf, info = self._buf, self._info
+        ret = self._rcl.rcl_take_serialized_message(self._pointer, ctypes.byref(buf), ctypes.byref(info), None)
+        if ret == _RCL_TAKE_FAILED:
+            return None
+        if ret != _RCL_OK:
+            raise RuntimeError(f"rcl_take_serialized_message failed ({ret})")
+        return ctypes.string_at(buf.buffer, buf.buffer_length), bytes(info.publisher_gid.data)
+
+    def destroy(self) -> None:
+        """Stop the arrival callback, destroy the subscription (through the node) and free the buffer."""
+        if self.closed:
+            return
+        self.closed = True
+        self._rcl.rcl_subscription_set_on_new_message_callback(self._pointer, _EVENT_CALLBACK(), None)
+        os.eventfd_write(self._efd, 1)  # the doorbell thread sees closed and ends
+        self._thread.join(2.0)
+        os.close(self._efd)
+        self.node._subscriptions.append(self.sub)  # back in the node's list, destroyed the node's way
+        self.node.destroy_subscription(self.sub)
+        self._rcutils.rcutils_uint8_array_fini(ctypes.byref(self._buf))
+
+
+class Sources:
+    """Which publisher of a topic is the stream's source (the first heard); the others are refused.
+
+    Attributes
+    ----------
+    source : bytes or None
+        The GID of the stream's source (None until the first message, and after it left the graph).
+    refused : Counter
+        Messages refused per publisher GID.
+    """
+
+    def __init__(self) -> None:
+        self.source: bytes | None = None
+        self.refused: Counter[bytes] = Counter()
+        self.heard: set[bytes] = set()
+        self.takeovers = 0
+        self._listed = False  # the source has been seen on the graph
+
+    def admit(self, gid: bytes) -> bool:
+        """Whether a message of publisher ``gid`` belongs to the stream (the first publisher heard becomes it)."""
+        if self.source is None:
+            self.source, self._listed = gid, False
+            self.takeovers += int(bool(self.heard))
+        self.heard.add(gid)
+        if gid == self.source:
+            return True
+        self.refused[gid] += 1
+        return False
+
+    def graph(self, publisher_gids: Iterable[Any]) -> bool:
+        """The publishers now on the graph; True when the source has left (the next publisher heard takes over).
+
+        The source must have been seen on the graph first: the graph learns of a publisher later than its
+        first messages may arrive, and a source not listed yet has not left."""
+        present = {bytes(list(g)[:GID_BYTES]) for g in publisher_gids}
+        if self.source is None:
+            return False
+        if self.source in present:
+            self._listed = True
+            return False
+        if self._listed:
+            self.source, self._listed = None, False
+            return True
+        return False
+
+    def values(self) -> dict[str, Any]:
+        """Diagnostics key-values: the source, the publishers heard, the messages refused."""
+        return {
+            "wheel_load_source": gid_text(self.source) if self.source is not None else "none",
+            "wheel_load_sources_heard": len(self.heard),
+            "second_source_refused": sum(self.refused.values()),
+            "source_takeovers": self.takeovers,
+        }

@@ -1,0 +1,77 @@
+"""The track node with a sim clock behind its stamps: negative lags are a warning, never OK (issue 26, item 9).
+
+``use_sim_time`` with a ``/clock`` that stopped 10 s before the wheel-load
+stamps (a simulator paused, a clock publisher gone): every answer is
+"published" 10 s before its stamp's time. The node's ``/diagnostics`` said OK
+with lags of -10 s; now WARN, the message names the clock, and the smallest
+lag is shown (``lag_min_s``). Once the clock runs with the stamps again, OK.
+
+Also (issue 26, item 10): a parameter the node does not have is refused with its name.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from driver import status_dict, track_node
+from rosgraph_msgs.msg import Clock
+from streams import encoded, frames
+
+from clm_core.io.timebase import NS
+
+WARN_LEVEL = DiagnosticStatus.WARN[0] if isinstance(DiagnosticStatus.WARN, bytes) else int(DiagnosticStatus.WARN)
+
+
+def _clock(ns: int) -> Clock:
+    return Clock(clock=type(Clock().clock)(sec=ns // NS, nanosec=ns % NS))
+
+
+def test_negative_lag_from_a_stopped_clock_is_a_warning(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
+    t0 = 1000 * NS
+    with track_node(ros_python, ros_domain_id, "use_sim_time:=true") as run:
+        drv = run.drv
+        clock = drv.node.create_publisher(Clock, "/clock", 10)
+        drv.wait_for(lambda: clock.get_subscription_count() >= 1, 30, "the node's /clock subscription")
+        clock.publish(_clock(t0))  # ... and the clock stops there
+        stream = frames(300, t0 + 10 * NS)  # stamps 10 s ahead of the stopped clock
+        drv.send(encoded(stream[:200]), expected_answers=200)
+
+        def warned() -> bool:
+            for _, st in reversed(drv.diagnostics):
+                d = status_dict(st)
+                if d.get("answers_in_period", "0") != "0":
+                    return d["_level"] == str(WARN_LEVEL) and \
+                        "negative lag" in d["_message"] and "clock is behind" in d["_message"] and \
+                        float(d["lag_min_s"]) < -9.0
+            return False
+
+        drv.wait_for(warned, 30, "a WARN for negative lags")
+        # the clock catches up with the stamps: OK again
+        clock.publish(_clock(stream[199][0]))
+        for t, m in zip(stream[200:], encoded(stream[200:])):
+            clock.publish(_clock(t[0]))
+            drv.pub.publish(m)
+            drv.spin(0.002)
+        drv.wait_answers(300, 300, 60)
+
+        final = [status_dict(st) for _, st in drv.diagnostics]
+
+        def settled() -> bool:
+            final[:] = [status_dict(st) for _, st in drv.diagnostics]
+            return any(d.get("received") == "300" and d.get("answers_in_period", "0") != "0" for d in final)
+
+        drv.wait_for(settled, 30, "diagnostics of the last answers")
+        d = next(d for d in reversed(final) if d.get("answers_in_period", "0") != "0")
+        assert float(d["lag_min_s"]) > -1.0 and "negative lag" not in d["_message"], d
+
+
+def test_undeclared_parameter_refusal_names_it(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
+    """A parameter the node does not have is refused with its name (issue 26.10: rclpy said 'parameter(s): []');
+    the node keeps every value and answers."""
+    with track_node(ros_python, ros_domain_id, discover=False) as run:
+        r = run.drv.set_double("soil.kff", 7e7)
+        assert not r.successful and "undeclared parameter(s): ['soil.kff']" in r.reason, r.reason
+        assert run.drv.set_double("soil.kf", 7e7).successful
