@@ -53,7 +53,7 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -252,6 +252,7 @@ def _train_figures(t: Train, codes: dict[str, int]) -> dict[str, Any]:
 def _bag_figures(bag: Path, ns: str) -> dict[str, Any]:
     """In = out of pair ``ns`` as recorded (once each, in order) and its lags from the recorder's log times."""
     from clm_core.io.bags import BagReader
+    from clm_core.io.timebase import lag_figures
 
     stamps: dict[str, list[int]] = {t: [] for t in PAIR_TOPICS}
     recv: list[int] = []
@@ -264,12 +265,10 @@ def _bag_figures(bag: Path, ns: str) -> dict[str, Any]:
                 recv.append(bm.log_ns - st)
     n_in, n_out, n_w = (len(stamps[t]) for t in PAIR_TOPICS)
     ok = n_in > 0 and stamps["wheel_loads"] == stamps["sleeper_response"] == stamps["wheel_rail_response"]
-    lags = np.asarray(recv, float) / 1e9 if recv else np.full(1, np.nan)
     return {
         "messages_in": n_in, "messages_out": n_out, "wheel_rail_responses": n_w,
         "in_equals_out": bool(ok),
-        "lag_median_s": float(np.median(lags)), "lag_p99_s": float(np.percentile(lags, 99)),
-        "lag_max_s": float(np.max(lags)),
+        **lag_figures(recv).named(),
     }
 
 
@@ -277,11 +276,9 @@ def _offline_check(bag: Path, ns: str, run: RunSettings) -> dict[str, Any]:
     """Replay pair ``ns``'s recorded wheel loads offline; compare its recorded answers with the replay's."""
     from clm_core.io.bags import BagReader
     from clm_core.online import OnlineTrackModel
-    from clm_core.params import SoilModel, load_model
     from clm_ros.replay import replay_bag
 
-    m = OnlineTrackModel(load_model(run.track, run.soil, cast(SoilModel, run.model)), dt=run.dt,
-                         n_sleepers=run.n_sleepers)
+    m = OnlineTrackModel.from_settings(run.track_parameters())  # what the pair's track node was given
     with tempfile.TemporaryDirectory(prefix="clm_fleet_") as tmp:
         stats = replay_bag(bag, Path(tmp) / "offline", m, topic=f"{ns}/wheel_loads", out_prefix=ns)
 
