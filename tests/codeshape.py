@@ -23,10 +23,11 @@ CORE = ROOT / "clm_core"
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors", "arrays", "checks", "lazy", "progress"),
     ("params", "settings", "io"),
-    ("newmark", "profile", "peaks", "frequency", "excitation", "soil", "track"),
+    ("newmark", "profile", "peaks", "spectra", "frequency", "excitation", "soil", "track"),
     ("solver",),
     ("online", "vehicle"),
     ("halfspace", "calibration"),
+    ("freefield",),
     ("synthetic",),
     ("studies",),
     ("commands", "cli"),

@@ -107,6 +107,12 @@ KNOWN_UPWARD = {
     ("clm_core.io.plots.frequency", "frequency"),  # TYPE_CHECKING
     ("clm_core.io.plots.frequency", "soil"),  # TYPE_CHECKING: ChainSums, ChainTimeResponse
     ("clm_core.io.plots.runs", "vehicle"),  # TYPE_CHECKING: CoupledResult
+    # the report figures of issue 23 (io/plots is the outputs layer the io split moves above the physics)
+    ("clm_core.io.plots.receivers", "freefield"),  # TYPE_CHECKING: FreeFieldResult
+    ("clm_core.io.plots.report", "peaks"),  # envelope, wheel-load statistics
+    ("clm_core.io.plots.report", "spectra"),  # amplitude spectra, one-third-octave bands
+    ("clm_core.io.plots.runs", "peaks"),
+    ("clm_core.io.plots.studies", "profile"),  # lazy: wave speeds of the soils
 }
 
 

@@ -166,6 +166,8 @@ def moving_load_velocity(
         Receiver position minus load position along the track [m].
     y : float
         Receiver distance from the load's line [m], > 0.
+    load : float
+        Magnitude of the moving point load [N] (default 1 N: the response per newton).
     band : callable, optional
         Band limit B(f) applied at the frequency f = k_x c / (2 pi) [Hz].
     k_max : float, optional

@@ -74,8 +74,8 @@ def _finite(r: ResponseFrame) -> bool:
 def test_random_frames_never_crash_poison_or_blind(data: st.DataObject) -> None:
     m = OnlineTrackModel(PARAMS, dt=1e-4, n_sleepers=41, accept_new_wheels=data.draw(st.booleans()))
     valid = stream(40, t0=WALL)
-    answered = hostile_accepted = 0
-    for f in valid:
+    answered = hostile_accepted = allowance = 0
+    for i, f in enumerate(valid):
         for _ in range(data.draw(st.integers(0, 3))):
             h = data.draw(hostile(f.stamp_ns))
             before = state(m)
@@ -95,6 +95,11 @@ def test_random_frames_never_crash_poison_or_blind(data: st.DataObject) -> None:
                 continue
             assert _finite(r), r
             hostile_accepted += 1
+            # an accepted frame (it may be ahead of the stream by up to max_gap: indistinguishable from a real
+            # jump) overtakes the valid frames stamped at or before it, and may cost a re-confirmation after them
+            stamp = getattr(h, "stamp_ns", None)
+            overtaken = sum(1 for g in valid[i:] if stamp is not None and g.stamp_ns <= stamp)
+            allowance += overtaken + m.policy.resync_confirm
         try:
             r = m.process(f)
         except Rejected as exc:  # a hostile frame accepted before it may have moved the stream (then: refusals)
@@ -104,8 +109,8 @@ def test_random_frames_never_crash_poison_or_blind(data: st.DataObject) -> None:
         assert _finite(r), r
         answered += 1
     # every valid frame is answered but those a hostile frame accepted before it took over: each accepted one
-    # costs the stream at most the frames that confirm it again (resync_confirm - 1) and the one it overtook
-    assert answered >= len(valid) - m.policy.resync_confirm * hostile_accepted, (answered, hostile_accepted)
+    # costs the stream the valid frames it overtook and at most the frames that confirm the stream again
+    assert answered >= len(valid) - allowance, (answered, hostile_accepted, allowance)
     if hostile_accepted == 0:
         assert answered == len(valid)
     # no outlier blinds the model: valid frames are answered again at the latest after resync_confirm (3) of them

@@ -562,6 +562,7 @@ def test_setup_cfg_script_dirs_follow_ament() -> None:
         "track_node": "clm_ros.track_node:main",
         "vehicle_node": "clm_ros.vehicle_node:main",
         "calibration_node": "clm_ros.calibration_node:main",
+        "receiver_node": "clm_ros.receiver_node:main",
     }
     data = {dest: sorted(files) for dest, files in kw["data_files"]}
     assert data["share/clm_ros/launch"] == sorted(f"launch/{p.name}" for p in LAUNCH_FILES)

@@ -130,7 +130,10 @@ class GidSubscription:
         # on arrival the middleware's thread calls eventfd_write(fd, n) (user_data = the fd): C only, no GIL
         self._efd = os.eventfd(0, os.EFD_CLOEXEC)
         libc = ctypes.CDLL(None)
-        self._callback = _EVENT_CALLBACK(ctypes.cast(libc.eventfd_write, ctypes.c_void_p).value)
+        address = ctypes.cast(libc.eventfd_write, ctypes.c_void_p).value
+        if address is None:
+            raise OSError("libc has no eventfd_write")
+        self._callback = _EVENT_CALLBACK(address)
         self._thread = threading.Thread(target=self._doorbell, name="clm_wheel_loads_doorbell", daemon=True)
         self._thread.start()
         self._pointer = ctypes.c_void_p(sub.handle.pointer)
