@@ -553,6 +553,17 @@ class HistoryWriter:
                          profile_wheels=pw)
 
 
+def _open_npz(path: str | Path, what: str) -> np.lib.npyio.NpzFile:
+    """``path`` opened as an ``.npz`` archive of plain arrays (no pickles), or an InputError naming ``what``."""
+    try:
+        z = np.load(path)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read a {what} ({exc})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise InputError(f"{path}: not a {what} (a single .npy array, not an .npz archive)")
+    return z
+
+
 def load_history(path: str | Path) -> TimeHistory:
     """Read a ``history.npz`` written by :class:`HistoryWriter`.
 
@@ -562,12 +573,7 @@ def load_history(path: str | Path) -> TimeHistory:
         The file cannot be read, is not an ``.npz`` archive of plain arrays,
         or lacks an array of the history.
     """
-    try:
-        z = np.load(path)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read a history.npz ({exc})") from None
-    if not isinstance(z, np.lib.npyio.NpzFile):
-        raise InputError(f"{path}: not a history.npz (a single .npy array, not an .npz archive)")
+    z = _open_npz(path, "history.npz")
     names = [f.name for f in dataclasses.fields(TimeHistory)]  # a history.npz holds one array per field
     with z:
         missing = [k for k in names if k not in z.files]
@@ -611,13 +617,7 @@ def read_vehicle_history(path: str | Path, dense: bool = True) -> dict[str, Any]
     """
     import json
 
-    try:
-        z = np.load(path)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read a vehicle_history.npz ({exc})") from None
-    if not isinstance(z, np.lib.npyio.NpzFile):
-        raise InputError(f"{path}: not a vehicle_history.npz (a single .npy array)")
-    with z:
+    with _open_npz(path, "vehicle_history.npz") as z:
         missing = [k for k in ("wheel_load", "first_sleeper", "soil_force", "sleeper_index") if k not in z.files]
         if missing:
             raise InputError(f"{path}: not a vehicle_history.npz of this layout: no array {', '.join(missing)}")

@@ -11,10 +11,7 @@ figures are printed by ``benchmarks/calibration_coverage.py``.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
@@ -24,24 +21,13 @@ from clm_core.calibration.signals import Recording, SamplingRules, common_grid
 from clm_core.calibration.spectra import WindowSpec, force_window, transfer_functions
 from clm_core.params import SoilParams
 from clm_core.synthetic import add_noise, simulate_impact
+from tests.calibration import load_benchmark
 
-ROOT = Path(__file__).resolve().parents[2]
 NAMES = ("mf", "kf", "df", "kc", "dc")
 STIFF = SoilParams(model="clm", mf=600.0, kf=150e6, df=1.1e6, kc=300e6, dc=-250e3)  # the soil of issues 14, 24
 
 
-def _load(name: str) -> ModuleType:
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-truth = _load("calibration_truth")
+truth = load_benchmark("calibration_truth")
 
 
 def _rel_error(soil: SoilParams, fitted: SoilParams) -> np.ndarray:

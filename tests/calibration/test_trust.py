@@ -10,11 +10,7 @@ coverage study is ``benchmarks/calibration_coverage.py`` (docs/calibration.md).
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from dataclasses import replace
-from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
@@ -29,23 +25,14 @@ from clm_core.calibration.spectra import WindowSpec, transfer_functions
 from clm_core.params import SoilParams, load_soil
 from clm_core.soil.chain import chain_response
 from clm_core.synthetic import add_noise, simulate_impact
+from tests.calibration import load_benchmark
 
-ROOT = Path(__file__).resolve().parents[2]
 NAMES = ("mf", "kf", "df", "kc", "dc")
 STIFF = SoilParams(model="clm", mf=600.0, kf=150e6, df=1.1e6, kc=300e6, dc=-250e3)  # the soil of issue 14
 Z95 = 1.959964
 
 
-def _load(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-truth = _load("calibration_truth")
+truth = load_benchmark("calibration_truth")
 
 
 def _truth(soil: SoilParams) -> np.ndarray:
