@@ -2,7 +2,7 @@
 
 One home for the frequency content of a time history (wheel loads, sleeper
 soil forces, rail deflections, receiver velocities), used by the figures of
-:mod:`clm_core.io.plots` and the summaries:
+:mod:`clm_core.outputs.plots` and the summaries:
 
 - :func:`amplitude_spectrum`: single-sided amplitude spectrum of the dynamic
   part of a uniformly sampled record (the amplitude of the harmonic at each

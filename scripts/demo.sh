@@ -13,5 +13,5 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 # --overwrite: results/ is regenerated on every run (the commands refuse an existing output without it)
 "$root/.venv/bin/clm" demo --out results/demo --overwrite "$@"
 "$root/.venv/bin/clm" report --out results/report --overwrite
-"$root/.venv/bin/python" -m clm_core.io.report_index results "clm demo and report" >/dev/null
+"$root/.venv/bin/python" -m clm_core.outputs.report_index results "clm demo and report" >/dev/null
 echo "demo: results in $root/results/ (index.html; demo/: bag, plots, summary.json; report/: receptances)"

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Render an output folder's report (DIR/index.html, clm_core.io.report_index) in
+# Render an output folder's report (DIR/index.html, clm_core.outputs.report_index) in
 # headless Chromium to a PNG, to look at the page as a reader would.
 #   scripts/screenshot-report.sh DIR [OUT.png] [WIDTHxHEIGHT]
 # Default OUT.png: DIR/index-screenshot.png (a name the report does not list as a
@@ -11,7 +11,7 @@ set -euo pipefail
 usage() { echo "usage: $0 DIR [OUT.png] [WIDTHxHEIGHT]  (DIR holds index.html)" >&2; exit 2; }
 [ $# -ge 1 ] && [ $# -le 3 ] || usage
 dir=$1
-[ -f "$dir/index.html" ] || { echo "$0: no $dir/index.html (write it: python -m clm_core.io.report_index $dir)" >&2; exit 2; }
+[ -f "$dir/index.html" ] || { echo "$0: no $dir/index.html (write it: python -m clm_core.outputs.report_index $dir)" >&2; exit 2; }
 out=${2:-$dir/index-screenshot.png}
 size=${3:-1400x2400}
 [[ $size =~ ^([0-9]+)x([0-9]+)$ ]] || { echo "$0: size '$size': expected WIDTHxHEIGHT in px, e.g. 1400x2400" >&2; exit 2; }

@@ -19,7 +19,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CORE = ROOT / "clm_core"
 
 #: The layers of clm_core, bottom first: a unit may import units of its own layer or below, never above.
-#: Inside a layer, any order (they are peers); ``io`` sits with the bottom layer (timebase, codec, bags, files).
+#: Inside a layer, any order (they are peers). ``io`` (timebase, codec, bags, files) sits with the bottom layer;
+#: ``outputs`` (history files, figures, reports) above the physics whose results it writes.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors", "arrays", "checks", "lazy", "progress"),
     ("params", "settings", "io"),
@@ -28,6 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("online", "vehicle"),
     ("halfspace", "calibration"),
     ("freefield",),
+    ("outputs",),
     ("synthetic",),
     ("studies",),
     ("commands", "cli"),

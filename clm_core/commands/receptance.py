@@ -69,7 +69,7 @@ def receptance_report(
 
     from clm_core.frequency import receptance
     from clm_core.io.files import write_json
-    from clm_core.io.plots import plot_receptance
+    from clm_core.outputs.plots import plot_receptance
     from clm_core.track import assemble
 
     check_band(fmin, fmax, df, sleepers)

@@ -4,7 +4,7 @@ The receptance of every track on every soil preset (rigid, Lysmer, CLM) and
 the CLM soil chain of every soil (Eq. 21 with the sleeper spacing of the track
 the soil preset names: 0.72 m for the Sec. 5.2 soils), written to ``--out``
 with an ``index.json`` of the resonance peaks and delays and an ``index.html``
-linking every figure and summary (:mod:`clm_core.io.report_index`). Part of
+linking every figure and summary (:mod:`clm_core.outputs.report_index`). Part of
 ``scripts/demo.sh``.
 The reports are computed by the same functions as ``clm receptance`` and
 ``clm soil-chain`` (:func:`~clm_core.commands.receptance.receptance_report`,
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from clm_core.commands.receptance import receptance_report
     from clm_core.commands.soil_chain import eq21_geometry, shear_wave_speed, soil_chain_report, soil_from_args
     from clm_core.io.files import write_json
-    from clm_core.io.report_index import write_index
+    from clm_core.outputs.report_index import write_index
     from clm_core.params import SoilModel, list_presets, load_model, soil_track
     from clm_core.progress import Progress
 

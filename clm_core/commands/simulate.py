@@ -7,9 +7,9 @@ time history (``--loads-file``, CSV, format in
 (:class:`clm_core.solver.TrackSimulator`, a window of sleepers that follows
 the wheels). Writes to ``--out``: ``history.npz``, ``peaks.csv``, with
 ``--csv`` also ``sleepers.csv`` and ``wheels.csv`` (layouts in
-:mod:`clm_core.io.history`), ``simulate.png``, the report figures
-(:data:`clm_core.io.plots.RUN_FIGURES`), ``summary.json`` and
-``index.html`` (:mod:`clm_core.io.report_index`). The writing phase shows
+:mod:`clm_core.outputs.history`), ``simulate.png``, the report figures
+(:data:`clm_core.outputs.plots.RUN_FIGURES`), ``summary.json`` and
+``index.html`` (:mod:`clm_core.outputs.report_index`). The writing phase shows
 a progress bar on a terminal; the printed real-time factors are named: the
 computation's (simulated time / stepping wall time) and the command's
 (simulated time / wall time of the whole command, writing included). Every option and its default comes from
@@ -131,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
             code = _run_vehicle(args, params, d_out, t_setup)
         else:
             code = _run_loads(args, params, d_out, t_setup)
-        from clm_core.freefield.run import receivers_for_run
+        from clm_core.outputs.receivers import receivers_for_run
 
         receivers_for_run(args, params, d_out)
         return code
@@ -140,8 +140,8 @@ def run(args: argparse.Namespace) -> int:
 def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: float) -> int:
     import numpy as np
 
-    from clm_core.io.history import HistoryWriter
-    from clm_core.io.plots import RUN_FIGURES
+    from clm_core.outputs.history import HistoryWriter
+    from clm_core.outputs.plots import RUN_FIGURES
     from clm_core.peaks import BlockPeaks
     from clm_core.progress import Progress
     from clm_core.solver import LoadTable, TrackSimulator
@@ -262,7 +262,7 @@ def _rtf_text(compute: float | None, summary: dict[str, Any]) -> str:
 def _finish(d_out: Path, summary: dict[str, Any], t_start: float, t_write: float | None, wrote: Any) -> None:
     """Command timing into the summary; ``summary.json`` and ``index.html`` (the report of the folder)."""
     from clm_core.io.files import write_json
-    from clm_core.io.report_index import write_index
+    from clm_core.outputs.report_index import write_index
 
     now = time.perf_counter()
     if t_write is not None:
@@ -284,7 +284,7 @@ def _loads_summary(args: argparse.Namespace, params: Any, d_out: Path, sim: Any,
     """Peaks (clm_core.peaks), figures and the summary of a moving-load run."""
     import numpy as np
 
-    from clm_core.io.plots import plot_run, plot_run_report
+    from clm_core.outputs.plots import plot_run, plot_run_report
     from clm_core.peaks import masked_max, peak_window
 
     d = params.track.spacing
@@ -387,7 +387,7 @@ def _front(block: Any) -> Any:
 def _write_bag(d_out: Path, storage: str) -> None:
     """DIR/bag from DIR/history.npz (clm_core.io.bags.write_history_bag; rosbags only, no middleware)."""
     from clm_core.io.bags import write_history_bag
-    from clm_core.io.history import load_history
+    from clm_core.outputs.history import load_history
 
     bag = d_out / "bag"
     if bag.exists():  # --overwrite (output_dir refused it otherwise)

@@ -200,7 +200,7 @@ def _write(args: argparse.Namespace, profile: Any, cal: Any, out: Path) -> None:
     )
     files = ["soil.yaml", "summary.json", "sweep.npz"]
     if not args.no_plots:
-        from clm_core.io.plots import plot_soil_calibration
+        from clm_core.outputs.plots import plot_soil_calibration
 
         files += plot_soil_calibration(cal, out)
     summary["files"] = files

@@ -112,7 +112,7 @@ def soil_chain_report(
     import numpy as np
 
     from clm_core.io.files import write_json
-    from clm_core.io.plots import plot_chain
+    from clm_core.outputs.plots import plot_chain
     from clm_core.soil.chain import chain_impedance_sums, chain_time_response
     from clm_core.soil.formulas import (
         alternating_sum_impedance,

@@ -615,7 +615,7 @@ def write_history_bag(history: Any, path: str | os.PathLike[str], storage: str =
 
     Parameters
     ----------
-    history : clm_core.io.history.TimeHistory
+    history : clm_core.outputs.history.TimeHistory
         ``t`` [s], wheel positions [m] and forces [N], sleeper fields of the
         window (``first_sleeper``, ``spacing`` [m], soil force [N],
         displacements [m]), rail deflection [m] and velocity [m/s] under the wheels.

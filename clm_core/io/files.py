@@ -7,7 +7,7 @@
 - :func:`write_npz`: every ``.npz`` archive, one array at a time (memory maps
   are streamed, not copied), no pickling.
 
-The time-history layouts written with them are in :mod:`clm_core.io.history`.
+The time-history layouts written with them are in :mod:`clm_core.outputs.history`.
 """
 
 from __future__ import annotations

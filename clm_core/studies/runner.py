@@ -174,7 +174,7 @@ def calibrate_bag(bag: Shipped, method: str, options: Mapping[str, Any], files: 
         parameter ``<name>``, ``<name>_ci95_low``, ``<name>_ci95_high``,
         ``warnings`` (joined with `` | ``), then :data:`RUN_COLUMNS` and
         ``worker``; and :data:`OUTPUTS`: the files of
-        :func:`clm_core.calibration.report.write_outputs` (``params.yaml``,
+        :func:`clm_core.outputs.calibration_report.write_outputs` (``params.yaml``,
         ``summary.json``, ``report.md``, plots) as ``{relative path: bytes}``,
         written by the client. The outputs name the bag and channel map by
         the client's paths. Never raises for the bag itself (``status = 'error'``).
@@ -185,7 +185,7 @@ def calibrate_bag(bag: Shipped, method: str, options: Mapping[str, Any], files: 
 
     from clm_core.calibration.api import calibrate
     from clm_core.calibration.options import CalibrationOptions
-    from clm_core.calibration.report import write_outputs
+    from clm_core.outputs.calibration_report import write_outputs
 
     row: dict[str, Any] = {"method": method, "model": None, "misfit": None, "rms_residual": None}
 

@@ -297,7 +297,7 @@ def run_study(spec: StudySpec, out: str | Path, *, scheduler: str | None = None,
     retry_failed : bool
         Run again the stored cases that failed.
     figures : bool
-        Write the figures (:func:`clm_core.io.plots.plot_study`).
+        Write the figures (:func:`clm_core.outputs.plots.plot_study`).
     source_text : str
         The study file's text, kept as ``out/study.yaml``.
     log : callable, optional
@@ -314,7 +314,7 @@ def run_study(spec: StudySpec, out: str | Path, *, scheduler: str | None = None,
     outcome = execute(items, d, scheduler=scheduler, workers=workers, retry_failed=retry_failed,
                       desc=f"clm study {spec.name}", warm=warm_up, lead=spec.varied, log=log)
     if figures:
-        from clm_core.io.plots import plot_study
+        from clm_core.outputs.plots import plot_study
 
         outcome.files += plot_study(outcome.rows, spec.varied, d, title=spec.name, fixed=spec.fixed)
     write_json(d / "study.json", {

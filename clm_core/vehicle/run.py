@@ -11,8 +11,8 @@ for 3 s with dt = 1e-4 s.
     run = build_vehicle_run(spec, load_model("mevergnies", "mevergnies", "clm"))
     result = run.simulation.run(run.duration)
 
-:func:`run_vehicle` also writes the outputs (:func:`clm_core.io.history.write_coupled_history`,
-:func:`clm_core.io.plots.plot_vehicle_run`) and returns the summary.
+:func:`run_vehicle` also writes the outputs (:func:`clm_core.outputs.history.write_coupled_history`,
+:func:`clm_core.outputs.plots.plot_vehicle_run`) and returns the summary.
 """
 
 from __future__ import annotations
@@ -297,8 +297,8 @@ def run_vehicle(
     out_dir : str or Path
         Output directory (created): ``vehicle_history.npz``, ``peaks.csv``,
         with ``csv_files`` ``wheels.csv`` and ``sleepers.csv`` (layouts in
-        :mod:`clm_core.io.history`), the figures
-        (:data:`clm_core.io.plots.VEHICLE_FIGURES`) and ``summary.json``.
+        :mod:`clm_core.outputs.history`), the figures
+        (:data:`clm_core.outputs.plots.VEHICLE_FIGURES`) and ``summary.json``.
     csv_files : bool
         Also write the CSV files.
     progress : bool
@@ -320,7 +320,7 @@ def run_vehicle(
     import time
 
     from clm_core.io.files import write_json
-    from clm_core.io.plots import VEHICLE_FIGURES
+    from clm_core.outputs.plots import VEHICLE_FIGURES
     from clm_core.progress import Progress
 
     tic, cpu = time.perf_counter(), time.process_time()
@@ -347,8 +347,8 @@ def run_vehicle(
 def write_vehicle_outputs(res: CoupledResult, out: Path, csv_files: bool, title: str,
                           on_file: Any = None) -> dict[str, Any]:
     """The files of a vehicle run (history, CSV on request, figures); return the envelope's summary entries."""
-    from clm_core.io.history import window_columns, write_coupled_history
-    from clm_core.io.plots import plot_vehicle_run
+    from clm_core.outputs.history import window_columns, write_coupled_history
+    from clm_core.outputs.plots import plot_vehicle_run
     from clm_core.peaks import sleeper_envelope
 
     first, sf = window_columns(res.soil_force)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clm_core.io.history import load_history, read_wheels_csv
+from clm_core.outputs.history import load_history, read_wheels_csv
 from tests.clitools import CLM, run_clm, run_in_pty
 
 

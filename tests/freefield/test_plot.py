@@ -8,7 +8,7 @@ import numpy as np
 
 from clm_core.freefield import FreeFieldResult, measures, receiver_velocity
 from clm_core.freefield.model import FreeFieldModel
-from clm_core.io.plots.receivers import plot_receivers
+from clm_core.outputs.plots.receivers import plot_receivers
 from tests.freefield.conftest import moving_window_forces
 
 

@@ -1,6 +1,6 @@
 """Checks every figure of the suite must pass (an engineer puts them in reports).
 
-Written independently of :mod:`clm_core.io.plots` (which places the legends):
+Written independently of :mod:`clm_core.outputs.plots` (which places the legends):
 these functions only look at a laid-out figure and at the PNG file.
 
 - every axes has an x and a y label with a unit in brackets, ``[...]`` (the

@@ -1,4 +1,4 @@
-"""History files (clm_core.io.history): one writer per format, one wheels.csv layout."""
+"""History files (clm_core.outputs.history): one writer per format, one wheels.csv layout."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from clm_core.errors import InputError, ParameterError
-from clm_core.io.history import (
+from clm_core.outputs.history import (
     PEAKS_CSV_COLUMNS,
     SLEEPER_CSV_COLUMNS,
     HistoryRecorder,
@@ -168,7 +168,7 @@ def test_read_wheels_csv_reads_the_earlier_layouts(tmp_path: Path) -> None:
 
 
 def test_readers_refuse_missing_and_foreign_files(tmp_path: Path) -> None:
-    from clm_core.io.history import read_wheels_csv
+    from clm_core.outputs.history import read_wheels_csv
 
     (tmp_path / "rows.csv").write_text("t_s,x0_m\n0.0,abc\n", encoding="utf-8")
     (tmp_path / "pickled.npz").write_text("not an archive", encoding="utf-8")

@@ -1,4 +1,4 @@
-"""Figures (clm_core.io.plots) as an engineer puts them in a report, and the HTML index.
+"""Figures (clm_core.outputs.plots) as an engineer puts them in a report, and the HTML index.
 
 Every figure the commands write is rendered here from real runs into
 ``tmp_path`` (receptance, soil chain, moving loads, vehicle, calibration,
@@ -23,16 +23,16 @@ import pytest
 from matplotlib.figure import Figure
 
 from clm_core.cli import main
-from clm_core.io import plots
-from clm_core.io.plots import _base
-from clm_core.io.report_index import write_index
+from clm_core.outputs import plots
+from clm_core.outputs.plots import _base
+from clm_core.outputs.report_index import write_index
 from clm_core.params import load_soil
 from clm_core.synthetic import add_noise, simulate_impact, write_bag
 from tests.io.figure_checks import curve_extremes, figure_problems, png_problems
 
 REPO = Path(__file__).resolve().parents[2]
 
-#: Every figure file of the suite (clm_core.io.plots module docstring).
+#: Every figure file of the suite (clm_core.outputs.plots module docstring).
 CORE_FIGURES = {"receptance.png", "chain.png", "simulate.png", "wheel_loads.png", "soil_forces.png", "spectra.png",
                 "third_octave.png", "transfer_functions.png", "sums.png", "time_histories.png", "receptances.png"}
 DEMO_FIGURES = set(plots.DEMO_FIGURES)
@@ -224,7 +224,7 @@ def test_clm_report_writes_its_html_index(tmp_path: Path) -> None:
 
 
 def test_importing_the_core_never_imports_matplotlib() -> None:
-    """Every clm_core module but the clm_core.io.plots package, imported in a fresh interpreter: no matplotlib."""
+    """Every clm_core module but the clm_core.outputs.plots package, imported in a fresh interpreter: no matplotlib."""
     code = textwrap.dedent(
         """
         import importlib, os, pkgutil, sys
@@ -237,9 +237,9 @@ def test_importing_the_core_never_imports_matplotlib() -> None:
                     yield from walk(os.path.join(path, m.name), prefix + m.name + ".")
 
         names = sorted(walk(clm_core.__path__[0], "clm_core."))
-        assert "clm_core.io.plots" in names and len(names) > 50, names
+        assert "clm_core.outputs.plots" in names and len(names) > 50, names
         for name in names:
-            if name != "clm_core.io.plots" and not name.startswith("clm_core.io.plots."):
+            if name != "clm_core.outputs.plots" and not name.startswith("clm_core.outputs.plots."):
                 importlib.import_module(name)
         bad = sorted(m for m in sys.modules if m == "matplotlib" or m.startswith("matplotlib."))
         print(len(names), bad)
@@ -257,7 +257,7 @@ def test_drawing_leaves_the_users_backend_and_pyplot_alone(tmp_path: Path) -> No
         import matplotlib
         matplotlib.use("svg")
         from clm_core.frequency import receptance
-        from clm_core.io.plots import plot_receptance
+        from clm_core.outputs.plots import plot_receptance
         from clm_core.params import load_model
         from clm_core.track import assemble
         import numpy as np
@@ -348,7 +348,7 @@ def test_the_report_page_has_headlines_with_units_and_captioned_figures(
 ) -> None:
     import json
 
-    from clm_core.io.report_index import CAPTIONS
+    from clm_core.outputs.report_index import CAPTIONS
 
     root, _ = rendered
     text = (root / "vehicle" / "index.html").read_text()

@@ -1,7 +1,7 @@
 """clm_ros.launcher (``clm demo``): its defaults are the schema's, its plots pass the report rules.
 
 The core side of both checks is in tests/test_settings.py (demo.yaml) and
-tests/io/test_plots.py (every figure of clm_core.io.plots); the launcher
+tests/io/test_plots.py (every figure of clm_core.outputs.plots); the launcher
 lives in clm_ros, hence here. The demo plots are drawn from the shipped demo
 bag by :func:`clm_ros.launcher.analyse_bag`, no DDS involved.
 """
@@ -17,7 +17,7 @@ from clm_ros.run_settings import NAMES, RunSettings
 from matplotlib.figure import Figure
 
 from clm_core.errors import ParameterError
-from clm_core.io import plots
+from clm_core.outputs import plots
 from clm_core.settings import SETTINGS
 from tests.io.figure_checks import figure_problems, png_problems
 from tests.io.test_plots import DEMO_FIGURES, check_wheel_panels

@@ -18,8 +18,8 @@ import scipy.sparse.linalg as spla
 
 from clm_core.errors import InputError, ParameterError
 from clm_core.frequency import dynamic_solve
-from clm_core.io.history import HistoryRecorder, TimeHistory
 from clm_core.newmark import NewmarkLinear, _initial_acceleration
+from clm_core.outputs.history import HistoryRecorder, TimeHistory
 from clm_core.params import ModelParams, SleeperOverride, load_model
 from clm_core.solver import Block, TrackSimulator
 from clm_core.track import assemble

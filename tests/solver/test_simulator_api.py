@@ -11,7 +11,7 @@ import pytest
 
 from clm_core.cli import main
 from clm_core.errors import InputError, ParameterError, StabilityError
-from clm_core.io.history import HistoryRecorder, load_history
+from clm_core.outputs.history import HistoryRecorder, load_history
 from clm_core.params import ModelParams, SleeperOverride, load_model, save_params_file
 from clm_core.solver import LoadTable, Snapshot, TrackSimulator
 

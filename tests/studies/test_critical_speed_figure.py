@@ -13,8 +13,8 @@ import pytest
 import yaml
 from matplotlib.figure import Figure
 
-from clm_core.io import plots
-from clm_core.io.plots.studies import KMH, plot_critical_speed, soil_wave_speeds
+from clm_core.outputs import plots
+from clm_core.outputs.plots.studies import KMH, plot_critical_speed, soil_wave_speeds
 from clm_core.profile import Layer, load_profile
 from tests.io.figure_checks import figure_problems, png_problems
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from clm_core.cli import main
-from clm_core.io.plots import plot_study
+from clm_core.outputs.plots import plot_study
 from clm_core.studies.study import prepare_dir
 
 ROOT = Path(__file__).resolve().parents[2]

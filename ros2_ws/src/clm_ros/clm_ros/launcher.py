@@ -21,11 +21,11 @@
    (``config/foxglove_demo.json`` is a Foxglove layout of the demo);
 4. when the vehicle's latched status says its train is done and every
    wheel-load message is answered in the bag, stops both nodes (SIGINT; both
-   must exit 0) and renders the plots (:func:`clm_core.io.plots.plot_demo`:
+   must exit 0) and renders the plots (:func:`clm_core.outputs.plots.plot_demo`:
    sleeper soil forces over time, rail deflection and soil force along the
    track at the moment of the peak soil force, one panel per wheel of the
    wheel loads) to PNG, writes ``summary.json`` and ``index.html`` linking
-   them (:func:`clm_core.io.report_index.write_index`).
+   them (:func:`clm_core.outputs.report_index.write_index`).
 
 ``summary.json`` holds, measured from the first message with nothing
 excluded: ``lag_median_s``, ``lag_p99_s``, ``lag_max_s`` (the time the
@@ -51,7 +51,7 @@ import numpy as np
 
 from clm_core.errors import ClmError
 from clm_core.io.files import write_json
-from clm_core.io.report_index import write_index
+from clm_core.outputs.report_index import write_index
 from clm_core.peaks import masked_max, peak_window
 from clm_core.progress import Progress
 from clm_ros.errors import ClmRosError
@@ -215,8 +215,8 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     Wm = np.full((len(wheel_F), nw), np.nan)
     for k, f in enumerate(wheel_F):
         Wm[k, : len(f)] = f
-    from clm_core.io.plots import DEMO_FIGURES, plot_demo
     from clm_core.io.timebase import lag_figures
+    from clm_core.outputs.plots import DEMO_FIGURES, plot_demo
     from clm_core.peaks import sleeper_envelope, wheel_load_statistics
 
     plot_demo(

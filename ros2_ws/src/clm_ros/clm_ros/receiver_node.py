@@ -45,7 +45,7 @@ class ReceiverNode(Node):
     def __init__(self, signals: StopSignals | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         from clm_core.freefield import FreeFieldModel, ReceiverStream
-        from clm_core.freefield.run import parse_receivers, receiver_soil
+        from clm_core.outputs.receivers import parse_receivers, receiver_soil
         from clm_core.params import model_from_settings
         from clm_core.settings import RATE, RECEIVER_INFLUENCE, SOIL, TRACK
 

@@ -11,7 +11,7 @@ from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array
-from clm_core.io.plots._base import (
+from clm_core.outputs.plots._base import (
     decimate,
     figure_legend,
     legend,
@@ -21,11 +21,11 @@ from clm_core.io.plots._base import (
     style,
     wheel_panels,
 )
-from clm_core.io.plots.report import Quantity, Record, pick_series, plot_soil_forces, report_figures, uniform
+from clm_core.outputs.plots.report import Quantity, Record, pick_series, plot_soil_forces, report_figures, uniform
 from clm_core.peaks import SleeperEnvelope, sleeper_envelope
 
 if TYPE_CHECKING:
-    from clm_core.io.history import RunDigest
+    from clm_core.outputs.history import RunDigest
     from clm_core.vehicle.coupled import CoupledResult
 
 #: Figures of a vehicle run (:func:`plot_vehicle_run`), in the order written.
@@ -47,7 +47,7 @@ def plot_run(
     history_npz : path
         The run's ``history.npz``.
     digest : RunDigest
-        From :meth:`clm_core.io.history.HistoryWriter.close`.
+        From :meth:`clm_core.outputs.history.HistoryWriter.close`.
     sleepers : list of int
         Global indices of the sleepers to plot.
     path : path

@@ -9,7 +9,7 @@ receiver velocities (:func:`clm_core.freefield.free_field`) and writes
   ``lv_db`` (R, 20) [dB re 5e-8 m/s], ``ppv_mm_per_s`` (R,),
   ``kb_fmax_mm_per_s`` (R,);
 - ``receivers.csv``: ``t_s`` then ``v{r}_m_per_s`` per receiver;
-- ``receivers.png`` (:func:`clm_core.io.plots.receivers.plot_receivers`);
+- ``receivers.png`` (:func:`clm_core.outputs.plots.receivers.plot_receivers`);
 - the ``receivers`` entry of ``summary.json`` (per receiver: x, y, PPV,
   KB_F,max, dominant band, L_v per band; plus the soil and model settings).
 
@@ -110,7 +110,7 @@ def _run_forces(d_out: Path) -> tuple[Array, Array, Array, float, list[int]]:
         return t, first, F, d, span
     vh = d_out / "vehicle_history.npz"
     if vh.exists():
-        from clm_core.io.history import read_vehicle_history
+        from clm_core.outputs.history import read_vehicle_history
 
         z = read_vehicle_history(vh, dense=False)
         t, first = z["t_out"], z["first_sleeper"].astype(np.int64)
@@ -129,7 +129,7 @@ def receivers_for_run(args: Any, params: Any, d_out: Path) -> dict[str, Any] | N
         return None
     from clm_core.freefield import free_field
     from clm_core.io.files import write_json, write_npz
-    from clm_core.io.plots.receivers import plot_receivers
+    from clm_core.outputs.plots.receivers import plot_receivers
     from clm_core.progress import Progress
 
     t, first, F, d, span = _run_forces(d_out)

@@ -42,10 +42,10 @@ headroom above the curves, or put outside the axes); wheel loads get one panel p
 that lie on each other are told apart by dashes, markers and drawing order.
 """
 
-from clm_core.io.plots._base import MAX_WHEEL_PANELS, figure_observers
-from clm_core.io.plots.calibration import plot_calibration, plot_soil_calibration
-from clm_core.io.plots.frequency import plot_chain, plot_receptance
-from clm_core.io.plots.runs import (
+from clm_core.outputs.plots._base import MAX_WHEEL_PANELS, figure_observers
+from clm_core.outputs.plots.calibration import plot_calibration, plot_soil_calibration
+from clm_core.outputs.plots.frequency import plot_chain, plot_receptance
+from clm_core.outputs.plots.runs import (
     DEMO_FIGURES,
     RUN_FIGURES,
     VEHICLE_FIGURES,
@@ -54,7 +54,7 @@ from clm_core.io.plots.runs import (
     plot_run_report,
     plot_vehicle_run,
 )
-from clm_core.io.plots.studies import plot_critical_speed, plot_exceedance, plot_study
+from clm_core.outputs.plots.studies import plot_critical_speed, plot_exceedance, plot_study
 
 __all__ = [
     "DEMO_FIGURES",

@@ -1,6 +1,6 @@
 """Writing a calibration: parameter files, summary, Markdown report and plots.
 
-The figures are drawn by :func:`clm_core.io.plots.plot_calibration`.
+The figures are drawn by :func:`clm_core.outputs.plots.plot_calibration`.
 
 :func:`write_outputs` writes into one directory:
 
@@ -198,7 +198,7 @@ def write_outputs(result: CalibrationResult, out_dir: str | Path, plots: bool = 
     written.append(write_json(d / "summary.json", result.summary()))
     pngs: list[str] = []
     if plots:
-        from clm_core.io.plots import plot_calibration
+        from clm_core.outputs.plots import plot_calibration
 
         pngs = plot_calibration(result, d)
     written += [d / p for p in pngs]

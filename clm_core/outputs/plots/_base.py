@@ -1,4 +1,4 @@
-"""Figure plumbing of :mod:`clm_core.io.plots`: Agg figures without pyplot, the house style, legend placement.
+"""Figure plumbing of :mod:`clm_core.outputs.plots`: Agg figures without pyplot, the house style, legend placement.
 
 Every figure is made by :func:`new_figure` inside :func:`style` and written
 by :func:`save`, which lays it out, moves any legend that would hide a curve

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from matplotlib.figure import Figure
 
-from clm_core.io.plots._base import legend, new_figure, save, style
+from clm_core.outputs.plots._base import legend, new_figure, save, style
 
 if TYPE_CHECKING:
     from clm_core.freefield import FreeFieldResult

@@ -11,7 +11,7 @@ import numpy as np
 from matplotlib.axes import Axes
 
 from clm_core.arrays import Array
-from clm_core.io.plots._base import figure_legend, legend, new_figure, save, style
+from clm_core.outputs.plots._base import figure_legend, legend, new_figure, save, style
 
 #: Most groups (curves) drawn in one panel; beyond that a spread selection, said in the title.
 MAX_CURVES = 8

@@ -1,8 +1,8 @@
 """Report figures shared by every time-domain run: spectra, one-third-octave bands, the soil-force envelope.
 
-Used by :func:`~clm_core.io.plots.plot_run` (moving loads),
-:func:`~clm_core.io.plots.plot_vehicle_run` (vehicle runs) and
-:func:`~clm_core.io.plots.plot_demo` (the ROS demo), so the three outputs
+Used by :func:`~clm_core.outputs.plots.plot_run` (moving loads),
+:func:`~clm_core.outputs.plots.plot_vehicle_run` (vehicle runs) and
+:func:`~clm_core.outputs.plots.plot_demo` (the ROS demo), so the three outputs
 carry the same figures:
 
 - ``spectra.png``: single-sided amplitude spectra (:func:`clm_core.spectra.amplitude_spectrum`)
@@ -26,7 +26,7 @@ from matplotlib.axes import Axes
 from numpy.typing import NDArray
 
 from clm_core.arrays import Array
-from clm_core.io.plots._base import decimate, figure_legend, legend, new_figure, save, style
+from clm_core.outputs.plots._base import decimate, figure_legend, legend, new_figure, save, style
 from clm_core.peaks import SleeperEnvelope
 from clm_core.spectra import amplitude_spectrum, nominal_frequency, third_octave_bands
 

@@ -18,7 +18,7 @@ Links are relative, so the tree can be moved, zipped or served as it is.
 No matplotlib. ``scripts/screenshot-report.sh DIR`` renders the page in
 headless Chromium to a PNG.
 
-``python -m clm_core.io.report_index DIR [TITLE]`` writes ``DIR/index.html``
+``python -m clm_core.outputs.report_index DIR [TITLE]`` writes ``DIR/index.html``
 (``scripts/demo.sh`` does so for ``results/``).
 """
 
@@ -284,10 +284,10 @@ def write_index(root: str | Path, title: str | None = None) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m clm_core.io.report_index DIR [TITLE]``: write ``DIR/index.html``; print its path."""
+    """``python -m clm_core.outputs.report_index DIR [TITLE]``: write ``DIR/index.html``; print its path."""
     args = sys.argv[1:] if argv is None else argv
     if not args or not Path(args[0]).is_dir():
-        print("usage: python -m clm_core.io.report_index DIR [TITLE] (DIR an existing directory)", file=sys.stderr)
+        print("usage: python -m clm_core.outputs.report_index DIR [TITLE] (DIR an existing directory)", file=sys.stderr)
         return 2
     print(write_index(args[0], " ".join(args[1:]) or None))
     return 0

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from matplotlib.figure import Figure
 
-from clm_core.io.plots._base import label_receptance_axes, legend, new_figure, receptance_lines, save, style
+from clm_core.outputs.plots._base import label_receptance_axes, legend, new_figure, receptance_lines, save, style
 
 if TYPE_CHECKING:
     from clm_core.calibration.api import CalibrationResult
