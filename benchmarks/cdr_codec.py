@@ -68,15 +68,15 @@ def main() -> int:
         from clm_ros.conversions import rclpy_responses
         from rclpy.serialization import deserialize_message, serialize_message
 
-        from clm_core.online import OnlineTrackModel
+        from clm_core.online import OnlineTrackModel, frame_from_msg
     except ImportError as exc:
         print(f"(rclpy comparison skipped: {exc})")
         return 0
     model = OnlineTrackModel.from_settings({"track": "mevergnies", "soil": "mevergnies", "model": "clm", "dt": 1e-4,
                                             "n_sleepers": 61})
-    resp = model.process(msgs.frame_from_msg(deserialize_message(wl, WheelLoads)))
+    resp = model.process(frame_from_msg(deserialize_message(wl, WheelLoads)))
     rclpy_cases = {
-        "rclpy: deserialize + frame_from_msg": lambda: msgs.frame_from_msg(deserialize_message(wl, WheelLoads)),
+        "rclpy: deserialize + frame_from_msg": lambda: frame_from_msg(deserialize_message(wl, WheelLoads)),
         "rclpy: rclpy_responses + serialize x2": lambda: [serialize_message(m) for m in rclpy_responses(resp, t_ns)],
         "codec: frame + both responses": lambda: (
             msgs.decode_wheel_loads(wl),

@@ -51,9 +51,9 @@ if str(CLM_ROS_SRC) not in sys.path:
 import clm_ros.replay as replay_mod  # noqa: E402
 
 from clm_core.io.bags import BagReader, BagWriter  # noqa: E402
-from clm_core.io.messages import WHEEL_LOADS, frame_from_msg, wheel_loads_msg  # noqa: E402
+from clm_core.io.messages import WHEEL_LOADS, wheel_loads_msg  # noqa: E402
 from clm_core.io.timebase import NS  # noqa: E402
-from clm_core.online import OnlineTrackModel, Rejected  # noqa: E402
+from clm_core.online import OnlineTrackModel, Rejected, frame_from_msg  # noqa: E402
 from clm_core.params import load_model  # noqa: E402
 
 SPEED = 83.33

@@ -19,11 +19,12 @@ ROOT = Path(__file__).resolve().parents[1]
 CORE = ROOT / "clm_core"
 
 #: The layers of clm_core, bottom first: a unit may import units of its own layer or below, never above.
-#: Inside a layer, any order (they are peers). ``io`` (timebase, codec, bags, files) sits with the bottom layer;
-#: ``outputs`` (history files, figures, reports) above the physics whose results it writes.
+#: Inside a layer, any order (they are peers). ``io`` (timebase, codec, bags, files) sits on the bottom layer
+#: alone; ``outputs`` (history files, figures, reports) above the physics whose results it writes.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors", "arrays", "checks", "lazy", "progress"),
-    ("params", "settings", "io"),
+    ("io",),
+    ("params", "settings"),
     ("newmark", "profile", "peaks", "spectra", "frequency", "excitation", "soil", "track"),
     ("solver",),
     ("online", "vehicle"),
@@ -110,11 +111,23 @@ def _visit(module: str, is_pkg: bool, node: ast.AST, in_function: bool, type_onl
                         yield Import(module, child.lineno, f"clm_core.{a.name}", fn, to)
             elif base.startswith("clm_core."):
                 yield Import(module, child.lineno, base, fn, to)
+        elif isinstance(child, ast.Call) and _dynamic_import(child):
+            # importlib.import_module("clm_core.x") / __import__("clm_core.x"): an import all the same
+            arg = child.args[0]
+            if isinstance(arg, ast.Constant) and isinstance(arg.value, str) and arg.value.startswith("clm_core."):
+                yield Import(module, child.lineno, arg.value, fn, to)
         yield from _visit(module, is_pkg, child, fn, to)
 
 
+def _dynamic_import(call: ast.Call) -> bool:
+    f = call.func
+    name = f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else ""
+    return name in ("import_module", "__import__") and bool(call.args)
+
+
 def imports() -> Iterator[Import]:
-    """Every import of a clm_core module inside clm_core, lazy ones (inside functions) and TYPE_CHECKING included."""
+    """Every import of a clm_core module inside clm_core, lazy ones (inside functions), TYPE_CHECKING ones and
+    ``importlib.import_module``/``__import__`` of a literal name included."""
     for module, path in modules():
         yield from _visit(module, path.name == "__init__.py", _parse(path), False, False)
 

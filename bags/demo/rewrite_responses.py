@@ -20,7 +20,7 @@ from pathlib import Path
 
 from clm_core.io import messages as msgs
 from clm_core.io.bags import BagReader, BagWriter
-from clm_core.online import OnlineTrackModel, Rejected
+from clm_core.online import OnlineTrackModel, Rejected, frame_from_cdr
 from clm_core.params import load_model
 
 BAG = Path(__file__).resolve().parent / "demo_bag"
@@ -33,7 +33,7 @@ def main() -> int:
     answers: dict[int, tuple[bytes, bytes]] = {}
     with BagReader(BAG) as r:
         for m in r.messages(["/wheel_loads"]):
-            res = model.process_batch([msgs.frame_from_cdr(m.data)])[0]
+            res = model.process_batch([frame_from_cdr(m.data)])[0]
             if isinstance(res, Rejected):
                 raise SystemExit(f"wheel loads at {m.log_ns} refused: {res}")
             answers[res.stamp_ns] = (

@@ -353,8 +353,9 @@ def _loads_summary(args: argparse.Namespace, params: Any, d_out: Path, sim: Any,
 
 def _run_vehicle(args: argparse.Namespace, params: Any, d_out: Path, t_start: float) -> int:
     """``--vehicle``: the coupled vehicle-track simulation (clm_core.vehicle.run)."""
+    from clm_core.outputs.vehicle_run import run_vehicle
     from clm_core.progress import terminal
-    from clm_core.vehicle.run import VehicleRunSpec, run_vehicle
+    from clm_core.vehicle.run import VehicleRunSpec
 
     spec = VehicleRunSpec.from_mapping({
         "vehicle": args.vehicle, "cars": args.cars, "train": tuple(s for s in (args.train or "").split(",") if s),

@@ -19,10 +19,11 @@ is built on this module):
    type: the ``.msg`` files *with their comments* (units, sign convention),
    dependencies appended as rosbag2 Jazzy's ``LocalMessageDefinitionSource``
    does.
-2. **Domain data.** :func:`frame_from_msg`, :func:`frame_from_cdr`
-   (``WheelLoads``, as a message or as CDR bytes -> the online model's
-   frame), :func:`sleeper_fields` / :func:`wheel_fields` (a response ->
-   message arrays), and rosbags message builders.
+2. **Message arrays.** :func:`sleeper_fields` / :func:`wheel_fields` (a
+   response -> message arrays), and rosbags message builders. The online
+   model's frame of a ``WheelLoads`` (as a message or as CDR bytes) is built
+   one layer up, by :func:`clm_core.online.frame_from_msg` and
+   :func:`clm_core.online.frame_from_cdr`.
 3. **CDR codec** (XCDR1, as ROS 2 Jazzy puts on the wire): ``WheelLoads``,
    ``SleeperResponse`` and ``WheelRailResponse`` to and from numpy arrays
    with ``np.frombuffer`` and preallocated buffers, no per-element Python.
@@ -39,7 +40,7 @@ from __future__ import annotations
 
 import functools
 import struct
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -54,18 +55,17 @@ from clm_core.io._definitions import (
     typestore,
 )
 from clm_core.io.errors import MessageError
-from clm_core.io.timebase import INT32_MAX, INT32_MIN, NS, ns_to_stamp, stamp_ns
+from clm_core.io.timebase import INT32_MAX, INT32_MIN, NS, ns_to_stamp
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
-
-    from clm_core.online import ResponseFrame, WheelFrame
 
 __all__ = [
     "PACKAGE",
     "SLEEPER_RESPONSE",
     "WHEEL_LOADS",
     "WHEEL_RAIL_RESPONSE",
+    "ResponseArrays",
     "SleeperResponseData",
     "WheelLoadsData",
     "WheelRailResponseData",
@@ -76,8 +76,6 @@ __all__ = [
     "encode_sleeper_response",
     "encode_wheel_loads",
     "encode_wheel_rail_response",
-    "frame_from_cdr",
-    "frame_from_msg",
     "header_msg",
     "interface_dir",
     "message_definition",
@@ -98,58 +96,36 @@ WHEEL_RAIL_RESPONSE = "clm_msgs/msg/WheelRailResponse"
 # ============================================================================ domain data
 
 
-def frame_from_msg(msg: Any) -> WheelFrame:
-    """``clm_msgs/WheelLoads`` (rclpy or rosbags) -> the online model's frame.
+class ResponseArrays(Protocol):
+    """What :func:`sleeper_fields`, :func:`wheel_fields` and :func:`response_msgs` read of a response.
 
-    Parameters
-    ----------
-    msg : WheelLoads
-        Any flavour with ``header`` and ``wheels[].id/position/force/speed``.
-
-    Returns
-    -------
-    clm_core.online.WheelFrame
-        Stamp [ns] (integer), ids, positions [m], forces [N] (positive
-        downwards), speeds [m/s], ``header.frame_id``.
-
-    Raises
-    ------
-    MessageError
-        A stamp outside ``builtin_interfaces/Time`` (``nanosec`` >= 1e9,
-        ``sec`` outside int32): the message is malformed.
+    The online model's :class:`clm_core.online.ResponseFrame` is one (this
+    layer names no type of the layers above it).
     """
-    from clm_core.online import WheelFrame
 
-    wheels = list(msg.wheels)
-    return WheelFrame.of(
-        stamp_ns(msg.header, check=True),
-        [w.id for w in wheels],
-        [w.position for w in wheels],
-        [w.force for w in wheels],
-        [w.speed for w in wheels],
-        str(msg.header.frame_id),
-    )
-
-
-def frame_from_cdr(data: Any) -> WheelFrame:
-    """Serialized ``clm_msgs/WheelLoads`` (CDR bytes, as on the wire or in a bag) -> the online model's frame.
-
-    :func:`decode_wheel_loads` (numpy codec, no per-wheel Python) and the
-    frame of its arrays: stamp [ns], ids (int64), positions [m], forces [N],
-    speeds [m/s], ``header.frame_id``.
-
-    Raises
-    ------
-    MessageError
-        Truncated or malformed bytes, a header ``nanosec`` >= 1e9.
-    """
-    from clm_core.online import WheelFrame
-
-    d = decode_wheel_loads(data)
-    return WheelFrame(d.stamp_ns, d.ids.astype(np.int64), d.positions, d.forces, d.speeds, d.frame_id)
+    @property
+    def sleeper_index(self) -> ArrayLike: ...
+    @property
+    def sleeper_x(self) -> ArrayLike: ...
+    @property
+    def soil_force(self) -> ArrayLike: ...
+    @property
+    def rail_deflection(self) -> ArrayLike: ...
+    @property
+    def sleeper_displacement(self) -> ArrayLike: ...
+    @property
+    def area_displacement(self) -> ArrayLike: ...
+    @property
+    def wheel_ids(self) -> ArrayLike: ...
+    @property
+    def wheel_positions(self) -> ArrayLike: ...
+    @property
+    def wheel_deflection(self) -> ArrayLike: ...
+    @property
+    def wheel_velocity(self) -> ArrayLike: ...
 
 
-def sleeper_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
+def sleeper_fields(resp: ResponseArrays) -> dict[str, NDArray[Any]]:
     """Array fields of a ``clm_msgs/SleeperResponse`` for a response.
 
     Returns
@@ -169,7 +145,7 @@ def sleeper_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
     }
 
 
-def wheel_fields(resp: ResponseFrame) -> dict[str, NDArray[Any]]:
+def wheel_fields(resp: ResponseArrays) -> dict[str, NDArray[Any]]:
     """Array fields of a ``clm_msgs/WheelRailResponse`` for a response.
 
     Returns
@@ -230,7 +206,7 @@ def wheel_loads_msg(
     )
 
 
-def response_msgs(ts: Typestore, resp: ResponseFrame, t_ns: int, frame_id: str = "track") -> tuple[Any, Any]:
+def response_msgs(ts: Typestore, resp: ResponseArrays, t_ns: int, frame_id: str = "track") -> tuple[Any, Any]:
     """``(SleeperResponse, WheelRailResponse)`` rosbags messages of a response, stamped ``t_ns`` [ns]."""
     return (
         ts.types[SLEEPER_RESPONSE](header=header_msg(ts, t_ns, frame_id), **sleeper_fields(resp)),

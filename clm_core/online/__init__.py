@@ -109,7 +109,7 @@ frame, interpolated from this one, would be refused).
 
 from __future__ import annotations
 
-from clm_core.online.edge import Answer, answer, decode, respond
+from clm_core.online.edge import Answer, answer, decode, frame_from_cdr, frame_from_msg, respond
 from clm_core.online.model import (
     FACTORY_SETTINGS,
     MODEL_SETTINGS,
@@ -137,6 +137,8 @@ __all__ = [
     "WheelFrame",
     "answer",
     "decode",
+    "frame_from_cdr",
+    "frame_from_msg",
     "model_params",
     "respond",
 ]

@@ -5,7 +5,7 @@ from the bytes of ``clm_msgs/WheelLoads`` messages to those of their
 ``clm_msgs/SleeperResponse`` and ``clm_msgs/WheelRailResponse`` answers:
 
 1. :func:`decode`: each message with the numpy CDR codec
-   (:func:`clm_core.io.messages.frame_from_cdr`); an undecodable one is
+   (:func:`frame_from_cdr`); an undecodable one is
    refused (``malformed``) and counted by the model
    (:meth:`~clm_core.online.OnlineTrackModel.reject`);
 2. :func:`respond`: every decoded frame through the model in one call
@@ -13,6 +13,9 @@ from the bytes of ``clm_msgs/WheelLoads`` messages to those of their
    response made an :class:`Answer`, whose two messages are serialized when
    first read (a node that publishes every n-th answer encodes only those);
 3. :func:`answer`: both, for callers with nothing to do in between.
+
+:func:`frame_from_cdr` and :func:`frame_from_msg` make the model's frame of
+one ``WheelLoads`` (CDR bytes, or a decoded rclpy/rosbags message).
 
 The results are in the order of the messages: an :class:`Answer` or the
 :class:`~clm_core.online.Rejected` of each.
@@ -26,9 +29,57 @@ from typing import Any
 import numpy as np
 
 from clm_core.io.errors import MessageError
-from clm_core.io.messages import encode_sleeper_response, encode_wheel_rail_response, frame_from_cdr
+from clm_core.io.messages import decode_wheel_loads, encode_sleeper_response, encode_wheel_rail_response
+from clm_core.io.timebase import stamp_ns
 from clm_core.online.model import OnlineTrackModel
 from clm_core.online.records import Reason, Rejected, ResponseFrame, WheelFrame
+
+
+def frame_from_msg(msg: Any) -> WheelFrame:
+    """``clm_msgs/WheelLoads`` (rclpy or rosbags) -> the online model's frame.
+
+    Parameters
+    ----------
+    msg : WheelLoads
+        Any flavour with ``header`` and ``wheels[].id/position/force/speed``.
+
+    Returns
+    -------
+    clm_core.online.WheelFrame
+        Stamp [ns] (integer), ids, positions [m], forces [N] (positive
+        downwards), speeds [m/s], ``header.frame_id``.
+
+    Raises
+    ------
+    MessageError
+        A stamp outside ``builtin_interfaces/Time`` (``nanosec`` >= 1e9,
+        ``sec`` outside int32): the message is malformed.
+    """
+    wheels = list(msg.wheels)
+    return WheelFrame.of(
+        stamp_ns(msg.header, check=True),
+        [w.id for w in wheels],
+        [w.position for w in wheels],
+        [w.force for w in wheels],
+        [w.speed for w in wheels],
+        str(msg.header.frame_id),
+    )
+
+
+def frame_from_cdr(data: Any) -> WheelFrame:
+    """Serialized ``clm_msgs/WheelLoads`` (CDR bytes, as on the wire or in a bag) -> the online model's frame.
+
+    :func:`clm_core.io.messages.decode_wheel_loads` (numpy codec, no per-wheel Python) and the
+    frame of its arrays: stamp [ns], ids (int64), positions [m], forces [N],
+    speeds [m/s], ``header.frame_id``.
+
+    Raises
+    ------
+    MessageError
+        Truncated or malformed bytes, a header ``nanosec`` >= 1e9.
+    """
+    d = decode_wheel_loads(data)
+    return WheelFrame(d.stamp_ns, d.ids.astype(np.int64), d.positions, d.forces, d.speeds, d.frame_id)
 
 
 class Answer:

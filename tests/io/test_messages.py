@@ -130,13 +130,13 @@ def test_message_definition_is_rosbag2s_full_text_with_comments() -> None:
 
 
 def test_domain_conversions_from_a_real_response() -> None:
-    from clm_core.online import OnlineTrackModel, WheelFrame
+    from clm_core.online import OnlineTrackModel, WheelFrame, frame_from_msg
     from clm_core.params import load_model
 
     model = OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=21)
     t_ns = 1_700_000_000 * NS + 123_456_789
     msg = msgs.wheel_loads_msg(TS, t_ns, [7, 9], [6.0, 3.5], [8e4, 9e4], [25.0, 25.0], frame_id="line_A")
-    frame = msgs.frame_from_msg(msg)
+    frame = frame_from_msg(msg)
     assert isinstance(frame, WheelFrame)
     assert frame.stamp_ns == t_ns and frame.frame_id == "line_A"
     assert list(frame.ids) == [7, 9] and list(frame.forces) == [8e4, 9e4]

@@ -20,7 +20,6 @@ from clm_core.io.messages import (
     encode_sleeper_response,
     encode_wheel_loads,
     encode_wheel_rail_response,
-    frame_from_cdr,
     sleeper_fields,
     wheel_fields,
 )
@@ -33,6 +32,7 @@ from clm_core.online import (
     Rejected,
     WheelFrame,
     answer,
+    frame_from_cdr,
     model_params,
 )
 from clm_core.params import load_model

@@ -21,8 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from clm_core.io.errors import MessageError
-from clm_core.io.messages import frame_from_msg, typestore, wheel_loads_msg
-from clm_core.online import OnlineTrackModel, Reason, Rejected, ResponseFrame, WheelFrame
+from clm_core.io.messages import typestore, wheel_loads_msg
+from clm_core.online import OnlineTrackModel, Reason, Rejected, ResponseFrame, WheelFrame, frame_from_msg
 from clm_core.params import ModelParams, load_model
 from tests.online.tools import FIELDS, MS, WALL, state, stream
 

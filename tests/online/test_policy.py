@@ -259,7 +259,8 @@ def test_header_nanosec_overflow_is_malformed(params) -> None:  # type: ignore[n
     """A header with nanosec >= 1e9 is refused at the edge, in the message and in its CDR bytes (the node's path),
     before the model sees it: the model's state is untouched. (The node counts it as ``rejected.malformed``: over
     DDS in tests/ros/test_track_node_robust.py.)"""
-    from clm_core.io.messages import frame_from_cdr, frame_from_msg, typestore, wheel_loads_msg
+    from clm_core.io.messages import typestore, wheel_loads_msg
+    from clm_core.online import frame_from_cdr, frame_from_msg
 
     ts = typestore()
     msg = wheel_loads_msg(ts, WALL, [0, 1], [30.0, 27.0], [85e3, 85e3])

@@ -92,13 +92,13 @@ def test_empty_sequences_from_rclpy_decode_despite_trailing_bytes() -> None:
 
 
 def test_rclpy_conversions_round_trip() -> None:
-    from clm_core.online import OnlineTrackModel
+    from clm_core.online import OnlineTrackModel, frame_from_msg
     from clm_core.params import load_model
 
     t_ns = 1_795_311_577 * NS + 12_847_207
     msg = rclpy_wheel_loads(t_ns, [0, 1], [6.0, 3.5], [8e4, 9e4], frame_id="track")
     assert stamp_ns(msg.header) == t_ns and math.isnan(msg.wheels[0].speed)
-    frame = msgs.frame_from_msg(deserialize_message(serialize_message(msg), WheelLoads))
+    frame = frame_from_msg(deserialize_message(serialize_message(msg), WheelLoads))
     assert frame.stamp_ns == t_ns and list(frame.positions) == [6.0, 3.5]
     model = OnlineTrackModel(load_model("mevergnies", "mevergnies", "clm"), dt=1e-4, n_sleepers=21)
     resp = model.process(frame)

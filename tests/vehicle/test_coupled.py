@@ -10,12 +10,13 @@ import pytest
 from scipy.signal import butter, sosfiltfilt
 
 from clm_core.errors import ParameterError, PresetError
+from clm_core.outputs.vehicle_run import run_vehicle
 from clm_core.params import ModelParams
 from clm_core.vehicle.coupled import CoupledSimulation
 from clm_core.vehicle.impact import equivalent_track, jenkins_p2
 from clm_core.vehicle.irregularity import DippedJoint, Irregularity, WheelFlat, random_profile
 from clm_core.vehicle.multibody import Train
-from clm_core.vehicle.run import VehicleRunSpec, run_vehicle
+from clm_core.vehicle.run import VehicleRunSpec
 
 DT = 1e-4
 

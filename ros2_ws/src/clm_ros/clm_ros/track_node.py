@@ -69,9 +69,18 @@ from visualization_msgs.msg import MarkerArray
 
 from clm_core.errors import ClmError
 from clm_core.io.errors import MessageError
-from clm_core.io.messages import encode_sleeper_response, encode_wheel_rail_response, frame_from_cdr
+from clm_core.io.messages import encode_sleeper_response, encode_wheel_rail_response
 from clm_core.io.timebase import NS
-from clm_core.online import InputPolicy, OnlineStats, OnlineTrackModel, Reason, Rejected, ResponseFrame, WheelFrame
+from clm_core.online import (
+    InputPolicy,
+    OnlineStats,
+    OnlineTrackModel,
+    Reason,
+    Rejected,
+    ResponseFrame,
+    WheelFrame,
+    frame_from_cdr,
+)
 from clm_core.params import PARAMETER_DOCS, SOIL_MODELS, ModelParams, load_model, load_params_file
 from clm_core.settings import ONLINE_POLICY
 from clm_ros import qos
