@@ -220,7 +220,12 @@ def reach_ins(probes: dict[str, str] | None = None) -> list[ReachIn]:
                 out.append(ReachIn(module, node.lineno, ast.unparse(node), owners))
         # ``from clm_core.x import _name`` / ``import clm_core.x._mod``: a private name of another unit too
         for node in ast.walk(tree):
-            if isinstance(node, ast.ImportFrom):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    if (a.name.startswith("clm_core.") and unit_of(a.name) != unit
+                            and any(_private(p) for p in a.name.split("."))):
+                        out.append(ReachIn(module, node.lineno, f"import {a.name}", (unit_of(a.name),)))
+            elif isinstance(node, ast.ImportFrom):
                 base = _resolve(module, path.name == "__init__.py", node)
                 if base.startswith("clm_core.") and unit_of(base) != unit:
                     for a in node.names:

@@ -13,30 +13,31 @@ from __future__ import annotations
 
 from tests import codeshape
 
-#: Imports of another unit's private module still to be replaced (by their owners): shrink, never grow.
-KNOWN_PRIVATE_IMPORTS = {
-    # the input policy's value rules are the per-frame kernel's (issue 22: one rule enum for both)
-    "clm_core/online/policy.py from clm_core.solver import _frame_kernel",
-}
-
 
 def test_no_module_reaches_into_another_units_private_attributes() -> None:
     found = [str(r) for r in codeshape.reach_ins() if not r.expr.startswith("from ")]
     assert found == [], "\n".join(found)
 
 
-def test_private_modules_are_imported_only_inside_their_unit() -> None:
-    found = {f"{r.module.replace('.', '/')}.py {r.expr}" for r in codeshape.reach_ins() if r.expr.startswith("from ")}
-    assert found <= KNOWN_PRIVATE_IMPORTS, "\n".join(sorted(found - KNOWN_PRIVATE_IMPORTS))
+def test_private_modules_and_names_are_imported_only_inside_their_unit() -> None:
+    """No ``from clm_core.x import _name``, ``from clm_core.x._mod import name`` or ``import clm_core.x._mod``
+    across units (issue 22: the input policy imported the solver's ``_frame_kernel``; one left before, none now)."""
+    found = [str(r) for r in codeshape.reach_ins() if r.expr.startswith(("from ", "import "))]
+    assert found == [], "\n".join(found)
 
 
 def test_the_scan_sees_a_reach_in() -> None:
     """The scanner is not blind: in a probe module of ``online``, ``sim._s`` (the simulator's state) and an
     import of the solver's private kernel module are found; ``self._s`` and ``rec._of`` (online's own) are not."""
     probe = ("from clm_core.solver._kernels import run_steps\n"
-             "def f(sim, self, rec):\n    return sim._s.k + self._s + rec._of\n")
+             "from clm_core.solver import _frame_kernel, TrackSimulator\n"
+             "from clm_core.online import _probe_helper\n"
+             "def f(sim, self, rec):\n    import clm_core.solver._frame_kernel\n"
+             "    return sim._s.k + self._s + rec._of\n")
     found = [r.expr for r in codeshape.reach_ins({"clm_core.online.probe": probe}) if r.module.endswith("probe")]
-    assert sorted(found) == ["from clm_core.solver._kernels import run_steps", "sim._s"]
+    assert sorted(found) == ["from clm_core.solver import _frame_kernel",
+                             "from clm_core.solver._kernels import run_steps",
+                             "import clm_core.solver._frame_kernel", "sim._s"]
 
 
 def test_no_module_over_700_lines() -> None:

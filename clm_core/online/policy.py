@@ -24,16 +24,25 @@ from clm_core.arrays import Array
 from clm_core.errors import ParameterError
 from clm_core.io.timebase import INT32_MAX, INT32_MIN, NS
 from clm_core.online.records import Reason
-from clm_core.solver import _frame_kernel as fk
+from clm_core.solver import LIM_FORCE, LIM_POSITION, LIM_SPAN, LIM_SPEED, LIM_TENSILE, FrameRule
+from clm_core.solver import check_frame as kernel_check_frame
 
 #: Stamps representable as ``builtin_interfaces/Time`` (int32 seconds) [ns].
 STAMP_MIN, STAMP_MAX = INT32_MIN * NS, INT32_MAX * NS + NS - 1
 #: Longest text of a refusal or a listed value sequence in it (characters).
 MESSAGE_CHARS = 300
 
-#: The reason of each value rule of the per-frame kernel (``clm_core.solver._frame_kernel.RULE_*``; 0: none).
-RULES = (None, Reason.NON_FINITE, Reason.TENSILE, Reason.IMPLAUSIBLE_FORCE, Reason.IMPLAUSIBLE_POSITION,
-         Reason.IMPLAUSIBLE_SPEED, Reason.OUTSIDE_WINDOW)
+#: The refusal of each value rule of the kernels (:class:`clm_core.solver.FrameRule`).
+REASONS: dict[FrameRule, Reason] = {
+    FrameRule.NON_FINITE: Reason.NON_FINITE,
+    FrameRule.TENSILE: Reason.TENSILE,
+    FrameRule.FORCE: Reason.IMPLAUSIBLE_FORCE,
+    FrameRule.POSITION: Reason.IMPLAUSIBLE_POSITION,
+    FrameRule.SPEED: Reason.IMPLAUSIBLE_SPEED,
+    FrameRule.SPAN: Reason.OUTSIDE_WINDOW,
+}
+#: :data:`REASONS` indexed by the rule's code (``RULES[0]``, no rule broken: None), for the kernels' int codes.
+RULES: tuple[Reason | None, ...] = tuple(REASONS.get(FrameRule(i)) for i in range(len(FrameRule)))
 
 
 @dataclass(frozen=True)
@@ -104,7 +113,7 @@ class InputPolicy:
         [m/s] and span of the wheels ``max_spread`` [m].
         """
         lim = np.empty(5)
-        lim[[fk.LIM_POSITION, fk.LIM_FORCE, fk.LIM_TENSILE, fk.LIM_SPEED, fk.LIM_SPAN]] = (
+        lim[[LIM_POSITION, LIM_FORCE, LIM_TENSILE, LIM_SPEED, LIM_SPAN]] = (
             self.max_wheel_position, self.max_wheel_force, self.tensile_tolerance, self.max_wheel_speed, max_spread)
         return lim
 
@@ -113,7 +122,7 @@ def check_frame(positions: Array, forces: Array, speeds: Array, limits: Array) -
     """The value rules of one frame: the first broken (None: none) and the wheel that breaks it.
 
     The same compiled rules as the per-frame kernel applies to the frames it
-    steps (:func:`clm_core.solver._frame_kernel.check_values`).
+    steps (:func:`clm_core.solver.check_frame`; the rules: :class:`clm_core.solver.FrameRule`).
 
     Parameters
     ----------
@@ -132,7 +141,7 @@ def check_frame(positions: Array, forces: Array, speeds: Array, limits: Array) -
     wheel : int
         Index in the frame of the wheel that breaks it (-1: the frame as a whole).
     """
-    rule, wheel = fk.check_frame(positions, forces, speeds, limits)
+    rule, wheel = kernel_check_frame(positions, forces, speeds, limits)
     return RULES[rule], int(wheel)
 
 
@@ -283,6 +292,7 @@ def clip(text: str, limit: int = MESSAGE_CHARS) -> str:
 __all__ = [
     "MAX_CATCH_UP_NS",
     "MESSAGE_CHARS",
+    "REASONS",
     "RESPONSE_KEY",
     "RULES",
     "STAMP_MAX",

@@ -116,7 +116,7 @@ from clm_core.solver._frame_kernel import (
 from clm_core.solver._kernels import free_response
 from clm_core.solver.loads import LoadFunction, Loads, LoadTable
 from clm_core.solver.operators import DofLayout, Operator, OperatorCache
-from clm_core.solver.records import Block, FrameResponses, SleeperFields, Snapshot
+from clm_core.solver.records import Block, FrameResponses, FrameRule, SleeperFields, Snapshot
 from clm_core.solver.simulator import CHUNK_STEPS, TrackSimulator
 from clm_core.solver.state import PendingStep, SimulatorState
 from clm_core.solver.window import Orientation, Placement, Window
@@ -135,6 +135,7 @@ __all__ = [
     "DofLayout",
     "FrameLoads",
     "FrameResponses",
+    "FrameRule",
     "LoadFunction",
     "LoadTable",
     "Loads",

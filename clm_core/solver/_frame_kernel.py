@@ -61,6 +61,7 @@ from numba import njit
 from clm_core.arrays import Array, IntArray
 from clm_core.solver import _kernels as kern
 from clm_core.solver._kernels import StepOperator, StepState, hermite_wheel
+from clm_core.solver.records import FrameRule
 
 #: ``out.ctl[CTL_STATUS]`` values.
 DONE, STOP_SHIFT, STOP_RESPONSE, STOP_INVALID = 0, 1, 2, 3
@@ -69,8 +70,11 @@ DONE, STOP_SHIFT, STOP_RESPONSE, STOP_INVALID = 0, 1, 2, 3
 #: the value rule a frame broke and the wheel that broke it (out, with ``STOP_INVALID``), the window's first
 #: sleeper at the end (out: the kernel may have shifted the window).
 CTL_K, CTL_FRAME, CTL_STATUS, CTL_PREV, CTL_BACKUP, CTL_RULE, CTL_WHEEL, CTL_FIRST = 0, 1, 2, 3, 4, 5, 6, 7
-#: Value rules of :func:`check_values` (0: none broken).
-RULE_NON_FINITE, RULE_TENSILE, RULE_FORCE, RULE_POSITION, RULE_SPEED, RULE_SPAN = 1, 2, 3, 4, 5, 6
+#: Value rules of :func:`check_values` (0: none broken): the codes of :class:`clm_core.solver.FrameRule`, as plain
+#: ints (compile-time constants of the kernels).
+RULE_NON_FINITE, RULE_TENSILE, RULE_FORCE, RULE_POSITION, RULE_SPEED, RULE_SPAN = (
+    int(FrameRule.NON_FINITE), int(FrameRule.TENSILE), int(FrameRule.FORCE), int(FrameRule.POSITION),
+    int(FrameRule.SPEED), int(FrameRule.SPAN))
 #: ``FrameGeometry.orient`` values.
 ORIENT_FORWARD, ORIENT_BACKWARD, ORIENT_FREE = 0, 1, 2
 #: Relative tolerance of the allowed zone and of the placement rule (as :mod:`clm_core.solver.window`).

@@ -40,7 +40,7 @@ import numpy as np
 from clm_core.arrays import IntArray
 from clm_core.errors import InputError
 from clm_core.solver import _frame_kernel as fk
-from clm_core.solver.records import FrameResponses
+from clm_core.solver.records import FrameResponses, FrameRule
 from clm_core.solver.window import Placement
 
 if TYPE_CHECKING:
@@ -133,7 +133,7 @@ class FrameRunner:
         saved = (s.placement, s.op, s.k, s.prev_dofs, s.prev_vals, s.pos, s.F)
         done, status, failure = self._frames(s, loads, out)
         if status == fk.STOP_INVALID:  # nothing of the frame was done: the state is that after the one before
-            rule, wheel = int(ctl[fk.CTL_RULE]), int(ctl[fk.CTL_WHEEL])
+            rule, wheel = FrameRule(int(ctl[fk.CTL_RULE])), int(ctl[fk.CTL_WHEEL])
             return FrameResponses(first, sleepers, wheels, done, failure, status, rule, wheel)
         if status != fk.DONE:
             bk = self._backup(s, W)

@@ -12,6 +12,7 @@ SI units, displacements and forces positive downwards.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import IntEnum
 from typing import NamedTuple
 
 import numpy as np
@@ -144,6 +145,33 @@ class Block:
         )
 
 
+class FrameRule(IntEnum):
+    """The value rules of a wheel-load frame, in the order they are checked; the code is the kernels' (0: none).
+
+    The one list of them: the per-frame kernel
+    (:func:`clm_core.solver.check_frame`, :meth:`clm_core.solver.TrackSimulator.advance_frames`) returns these
+    codes and the online input policy (:data:`clm_core.online.policy.REASONS`) names each one's refusal.
+
+    >>> FrameRule(3), int(FrameRule.SPAN)
+    (<FrameRule.FORCE: 3>, 6)
+    """
+
+    NONE = 0
+    """No rule broken."""
+    NON_FINITE = 1
+    """A position or force not finite, or an infinite speed."""
+    TENSILE = 2
+    """A force below ``-tensile`` [N]."""
+    FORCE = 3
+    """A force above the force bound [N]."""
+    POSITION = 4
+    """A ``|position|`` above its bound [m]."""
+    SPEED = 5
+    """A ``|speed|`` above its bound [m/s]."""
+    SPAN = 6
+    """The wheels span more than the window holds [m]."""
+
+
 class FrameResponses(NamedTuple):
     """The responses to R frames of wheel loads (N sleepers, M wheel entries), and where the run stopped.
 
@@ -173,8 +201,8 @@ class FrameResponses(NamedTuple):
         ``STOP_SHIFT`` (its wheels could not be placed in the window part-way
         through its interval), ``STOP_RESPONSE`` (its response not finite or
         beyond the bounds), ``STOP_INVALID`` (it broke a value rule).
-    rule : int
-        With ``STOP_INVALID``: the value rule (``RULE_*``), else 0.
+    rule : FrameRule
+        With ``STOP_INVALID``: the value rule broken, else ``FrameRule.NONE``.
     wheel : int
         With ``STOP_INVALID``: the index in the frame of the wheel that broke
         the rule (-1: the frame as a whole).
@@ -186,7 +214,7 @@ class FrameResponses(NamedTuple):
     done: int
     failure: str
     status: int = 0
-    rule: int = 0
+    rule: FrameRule = FrameRule.NONE
     wheel: int = -1
 
 

@@ -96,6 +96,31 @@ def test_absurd_values_refused_and_the_stream_flows_on(params, positions, forces
     assert dict(m.stats.rejected) == {reason.value: 1} and m.stats.accepted == 60
 
 
+def test_one_rule_enum_for_the_kernel_and_the_policy() -> None:
+    """Each value rule, broken alone, comes out of the compiled check as its :class:`FrameRule` code and out of
+    the policy as that rule's refusal (``REASONS``); every rule but NONE has one, and no two share one."""
+    from clm_core.online.policy import REASONS, RULES, check_frame
+    from clm_core.solver import FrameRule
+    from clm_core.solver import check_frame as kernel_check_frame
+
+    assert set(REASONS) == set(FrameRule) - {FrameRule.NONE} and len(set(REASONS.values())) == len(REASONS)
+    assert RULES == tuple(REASONS.get(r) for r in sorted(FrameRule))
+    lim = InputPolicy(max_wheel_force=1e6, max_wheel_position=1e4, max_wheel_speed=200.0).limits(20.0)
+    ok = (np.array([0.0, 3.0]), np.array([8e4, 8e4]), np.array([50.0, 50.0]))
+    broken = {
+        FrameRule.NON_FINITE: (np.array([0.0, np.nan]), ok[1], ok[2]),
+        FrameRule.TENSILE: (ok[0], np.array([8e4, -1e3]), ok[2]),
+        FrameRule.FORCE: (ok[0], np.array([8e4, 2e6]), ok[2]),
+        FrameRule.POSITION: (np.array([0.0, 2e4]), ok[1], ok[2]),
+        FrameRule.SPEED: (ok[0], ok[1], np.array([50.0, 300.0])),
+        FrameRule.SPAN: (np.array([0.0, 30.0]), ok[1], ok[2]),
+    }
+    assert kernel_check_frame(*ok, lim)[0] == FrameRule.NONE and check_frame(*ok, lim)[0] is None
+    for rule, frame in broken.items():
+        assert FrameRule(kernel_check_frame(*frame, lim)[0]) is rule
+        assert check_frame(*frame, lim)[0] is REASONS[rule]
+
+
 def test_speeds_bounded_nan_unknown(params) -> None:  # type: ignore[no-untyped-def]
     m = _model(params)
     f = stream(2)
