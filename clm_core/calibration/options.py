@@ -6,6 +6,11 @@ service, the ``--options`` file of ``clm calibrate``) with
 sections ``window`` (:class:`~clm_core.calibration.spectra.WindowSpec`) and
 ``sampling`` (:class:`~clm_core.calibration.signals.SamplingRules`) tune the
 signal processing and the record checks.
+
+The scalar options are settings (:class:`clm_core.settings.Setting`) of one table,
+:data:`CALIBRATION_SETTINGS`: their defaults are the dataclass's, and ``clm
+calibrate`` generates its options from it (``--fmax``, ``--n-areas``, ...) as
+the other commands do from :mod:`clm_core.settings`.
 """
 
 from __future__ import annotations
@@ -22,10 +27,66 @@ from clm_core.calibration.lsq import INTERVALS, FitControls
 from clm_core.calibration.residuals import NORMS
 from clm_core.calibration.signals import SamplingRules
 from clm_core.calibration.spectra import WindowSpec
+from clm_core.settings import Setting
 
 METHODS: tuple[str, ...] = ("impact", "receptance", "passby")
 #: Default band [Hz] per method (fmax is further limited to 0.45 x the sample rate).
 DEFAULT_BAND: Mapping[str, tuple[float, float]] = {"impact": (2.0, 150.0), "receptance": (10.0, 500.0)}
+SOIL_MODELS: tuple[str, ...] = ("clm", "lysmer", "winkler")
+BASE_MODELS: tuple[str, ...] = ("rigid", "winkler", "lysmer", "clm")
+
+
+def _odd(v: int) -> str:
+    return "" if v % 2 else "must be odd"
+
+
+#: The scalar options of a calibration (every field of :class:`CalibrationOptions` but the nested ``window``,
+#: ``sampling`` and ``initial``, which only an options file sets), in the order ``clm calibrate --help`` lists them.
+CALIBRATION_SETTINGS: Mapping[str, Setting[Any]] = {s.name: s for s in (
+    Setting("channels", str, None, "-", "channel map YAML", none_means="channels.yaml in the bag directory"),
+    Setting("fmin", float, None, "Hz", "lowest fitted frequency", minimum=0.0,
+            none_means="the method's: impact 2, receptance 10"),
+    Setting("fmax", float, None, "Hz", "highest fitted frequency", minimum=0.0,
+            none_means="the method's: impact 150, receptance 500, at most 0.45 x the sample rate"),
+    Setting("norm", str, "weighted", "-", "error norm (weighted: by the measured noise)", choices=NORMS),
+    Setting("model", str, "clm", "-", "impact test: soil model fitted", choices=SOIL_MODELS),
+    Setting("compare", bool, True, "-", "impact test: also fit the other soil models, for comparison"),
+    Setting("n_areas", int, None, "-", "impact test: areas of the model chain", minimum=3, rule=_odd,
+            none_means="chosen from the data (2 max|index| + 1 up while the rms residual falls)"),
+    Setting("first", str, "weighted", "-", "impact test: first estimate (weighted sums, or the paper's route)",
+            choices=("weighted", "paper")),
+    Setting("interval", str, "inflated", "-", "impact test: how the 95 % intervals are computed",
+            choices=INTERVALS),
+    Setting("delay", str, "check", "-", "impact test: force-to-response delay, estimated (check) or removed (fit)",
+            choices=("check", "fit")),
+    Setting("timing_accuracy", float, 0.0, "s", "impact test: stated force-to-response timing accuracy "
+            "(widens the intervals; 0: none stated)", minimum=0.0),
+    Setting("n_sleepers", int, 41, "-", "receptance test: sleepers of the model track", minimum=3, rule=_odd),
+    Setting("fit", str, None, "-", "receptance/pass-by: parameters to fit, comma-separated (kp dp ms kb db, "
+            "+ soil names with --soil joint)", none_means="kp,dp,kb,db (receptance), kp,kb (pass-by)"),
+    Setting("soil", str, "fixed", "-", "track tests: keep the soil of the base set (fixed) or fit it (joint)",
+            choices=("fixed", "joint")),
+    Setting("params", str, None, "-", "base parameter file (rail, track, soil; replaces --track/--base-soil)",
+            none_means="none: the base set is --track, --base-soil and --base-model"),
+    Setting("track", str, "mevergnies", "-", "base track preset or file"),
+    Setting("base_soil", str, "mevergnies", "-", "base soil preset or file"),
+    Setting("base_model", str, "clm", "-", "soil model of the base set for track tests", choices=BASE_MODELS),
+    Setting("min_lines", int, 16, "-", "least number of frequency lines in the band", minimum=4),
+    Setting("dt", float, None, "s", "pass-by: integration step", minimum=0.0,
+            none_means="the record's sample period divided into steps of at most 0.5 ms"),
+    Setting("quiet_distance", float, 6.0, "m", "pass-by: distance beyond which a wheel leaves a sleeper at rest"),
+    Setting("max_nfev", int, None, "-", "optimiser budget (model evaluations)", minimum=1,
+            none_means="200 impact, 100 receptance, 60 pass-by"),
+    Setting("ident_rel", float, 0.25, "-", "identifiability: 95 % half-width at most this fraction of the value",
+            minimum=0.0),
+    Setting("cond_max", float, 1e6, "-", "identifiability: largest condition number of the scaled Jacobian",
+            minimum=1.0),
+)}
+
+
+def _d(name: str) -> Any:
+    """The default of a calibration setting (the dataclass's field default)."""
+    return CALIBRATION_SETTINGS[name].default
 
 
 @dataclass(frozen=True)
@@ -98,42 +159,42 @@ class CalibrationOptions:
         Identifiability rule: condition number of the scaled Jacobian.
     """
 
-    fmin: float | None = None
-    fmax: float | None = None
-    norm: str = "weighted"
-    model: str = "clm"
-    compare: bool = True
-    n_areas: int | None = None
-    first: str = "weighted"
-    interval: str = "inflated"
-    delay: str = "check"
-    timing_accuracy: float = 0.0
-    n_sleepers: int = 41
-    fit: tuple[str, ...] | None = None
-    soil: str = "fixed"
-    params: str | None = None
-    track: str = "mevergnies"
-    base_soil: str = "mevergnies"
-    base_model: str = "clm"
+    fmin: float | None = _d("fmin")
+    fmax: float | None = _d("fmax")
+    norm: str = _d("norm")
+    model: str = _d("model")
+    compare: bool = _d("compare")
+    n_areas: int | None = _d("n_areas")
+    first: str = _d("first")
+    interval: str = _d("interval")
+    delay: str = _d("delay")
+    timing_accuracy: float = _d("timing_accuracy")
+    n_sleepers: int = _d("n_sleepers")
+    fit: tuple[str, ...] | None = _d("fit")
+    soil: str = _d("soil")
+    params: str | None = _d("params")
+    track: str = _d("track")
+    base_soil: str = _d("base_soil")
+    base_model: str = _d("base_model")
     initial: Mapping[str, float] | None = None
-    channels: str | None = None
+    channels: str | None = _d("channels")
     window: WindowSpec = field(default_factory=WindowSpec)
     sampling: SamplingRules = field(default_factory=SamplingRules)
-    min_lines: int = 16
-    dt: float | None = None
-    quiet_distance: float = 6.0
-    max_nfev: int | None = None
-    ident_rel: float = 0.25
-    cond_max: float = 1e6
+    min_lines: int = _d("min_lines")
+    dt: float | None = _d("dt")
+    quiet_distance: float = _d("quiet_distance")
+    max_nfev: int | None = _d("max_nfev")
+    ident_rel: float = _d("ident_rel")
+    cond_max: float = _d("cond_max")
 
     def __post_init__(self) -> None:
         if self.norm not in NORMS:
             raise CalibrationError(f"norm = {self.norm!r}: must be one of {', '.join(NORMS)}")
-        if self.model not in ("clm", "lysmer", "winkler"):
+        if self.model not in SOIL_MODELS:
             raise CalibrationError(f"model = {self.model!r}: must be clm, lysmer or winkler")
         if self.soil not in ("fixed", "joint"):
             raise CalibrationError(f"soil = {self.soil!r}: must be fixed or joint")
-        if self.base_model not in ("rigid", "winkler", "lysmer", "clm"):
+        if self.base_model not in BASE_MODELS:
             raise CalibrationError(f"base_model = {self.base_model!r}: must be rigid, winkler, lysmer or clm")
         for name in ("fmin", "fmax", "dt"):
             v = getattr(self, name)

@@ -3,8 +3,16 @@
     clm calibrate BAG --method impact|receptance|passby --out DIR
         [--channels MAP.yaml] [--fmin HZ] [--fmax HZ] [--norm NORM]
         [--model clm|lysmer|winkler] [--fit kp,dp,kb,db] [--soil fixed|joint]
-        [--params FILE] [--options OPTIONS.yaml] [--no-plots] [--no-progress]
+        [--params FILE] [... every calibration setting] [--options OPTIONS.yaml] [--no-plots] [--no-progress]
     clm calibrate FOLDER --method ... --out DIR [--scheduler ADDRESS] [--workers N] [--retry-failed]
+
+The calibration options are generated from the calibration settings
+(:data:`clm_core.calibration.options.CALIBRATION_SETTINGS`, through
+:func:`clm_core.commands._options.add_setting` as every command's settings):
+one option per scalar field of
+:class:`~clm_core.calibration.options.CalibrationOptions`, checked while
+the arguments are parsed. An option given overrides the ``--options`` file;
+one not given leaves the file's value (or the default).
 
 Writes params.yaml, soil.yaml / track.yaml, summary.json, report.md and PNG
 plots into DIR (:func:`clm_core.outputs.calibration_report.write_outputs`). A
@@ -24,10 +32,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from clm_core.calibration.options import METHODS, CalibrationOptions
-from clm_core.calibration.residuals import NORMS
+from clm_core.calibration.options import CALIBRATION_SETTINGS, METHODS, CalibrationOptions
 from clm_core.commands._common import add_command, check_output, output_dir, quantity
-from clm_core.commands._options import add_overwrite
+from clm_core.commands._options import add_overwrite, add_setting
 from clm_core.commands.study import add_engine_arguments
 from clm_core.errors import InputError
 
@@ -39,19 +46,10 @@ def register(sub: Any) -> None:
                    "study engine)")
     p.add_argument("--method", required=True, choices=METHODS, help="test type")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--channels", default=None, help="channel map YAML (default: channels.yaml in the bag directory)")
-    p.add_argument("--fmin", type=float, default=None, help="lowest fitted frequency [Hz] (impact 2, receptance 10)")
-    p.add_argument("--fmax", type=float, default=None,
-                   help="highest fitted frequency [Hz] (impact 150, receptance 500)")
-    p.add_argument("--norm", default=None, choices=NORMS,
-                   help="error norm (default weighted: by the measured noise)")
-    p.add_argument("--model", default=None, choices=("clm", "lysmer", "winkler"),
-                   help="soil model (impact; default clm)")
-    p.add_argument("--fit", default=None,
-                   help="parameters to fit, comma-separated (receptance/passby), e.g. kp,dp,kb,db,ms")
-    p.add_argument("--soil", default=None, choices=("fixed", "joint"), help="track tests: keep or fit the soil")
-    p.add_argument("--params", default=None, help="base parameter file (rail, track, soil)")
-    p.add_argument("--options", default=None, help="options YAML (all settings; see docs/calibration.md)")
+    for s in CALIBRATION_SETTINGS.values():  # None when not given: the --options file's value, else the default
+        add_setting(p, s, default=None)
+    p.add_argument("--options", default=None, help="options YAML (all settings, window and sampling sections "
+                   "too; see docs/calibration.md); the options given override it")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(p)
@@ -79,25 +77,8 @@ def run(args: argparse.Namespace) -> int:
         opts = CalibrationOptions.from_yaml(path.read_text())
     else:
         opts = CalibrationOptions()
-    opts = CalibrationOptions.from_mapping(
-        {
-            **opts.to_dict(),
-            **{
-                k: v
-                for k, v in {
-                    "channels": args.channels,
-                    "fmin": args.fmin,
-                    "fmax": args.fmax,
-                    "norm": args.norm,
-                    "model": args.model,
-                    "fit": args.fit,
-                    "soil": args.soil,
-                    "params": args.params,
-                }.items()
-                if v is not None
-            },
-        }
-    )
+    given = {k: v for k in CALIBRATION_SETTINGS if (v := getattr(args, k)) is not None}
+    opts = CalibrationOptions.from_mapping({**opts.to_dict(), **given})
     from clm_core.progress import Progress
     from clm_core.studies.study import is_bag_folder
 

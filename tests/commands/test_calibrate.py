@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -95,3 +97,47 @@ def test_progress_reports_and_bar_on_a_terminal(small_bag: Path, tmp_path: Path,
     monkeypatch.setattr(sys, "stderr", err)
     assert main(["calibrate", str(small_bag), "--method", "impact", "--out", str(tmp_path / "o"), "--no-plots"]) == 0
     assert "calibrate:" in err.getvalue() and "%" in err.getvalue()
+
+
+def _calibrate_parser() -> argparse.ArgumentParser:
+    from clm_core.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices["calibrate"]  # type: ignore[no-any-return]
+
+
+def test_every_calibration_setting_has_an_option_and_every_option_a_setting() -> None:
+    """``clm calibrate``'s options are generated from CALIBRATION_SETTINGS: one option per setting (its flag, type,
+    choices), no hand-written option for a calibration value beside them; the settings are the scalar fields of
+    CalibrationOptions, with its defaults."""
+    from clm_core.calibration.options import CALIBRATION_SETTINGS, CalibrationOptions
+
+    p = _calibrate_parser()
+    command = {"help", "bag", "method", "out", "options", "no_plots", "no_progress", "overwrite", "allow_partial",
+               "scheduler", "workers", "retry_failed"}  # what to fit and where, not how: not calibration settings
+    dests = {a.dest: a for a in p._actions}
+    assert set(dests) - command == set(CALIBRATION_SETTINGS)
+    for name, s in CALIBRATION_SETTINGS.items():
+        a = dests[name]
+        assert list(a.option_strings[:1]) == [s.option] and a.default is None, name
+        assert s.description.replace("%", "%%") in (a.help or ""), name
+    nested = {"window", "sampling", "initial"}  # sections only an options file sets
+    fields = {f.name: f for f in dataclasses.fields(CalibrationOptions)}
+    assert set(fields) - nested == set(CALIBRATION_SETTINGS)
+    defaults = CalibrationOptions()
+    assert all(getattr(defaults, n) == s.default for n, s in CALIBRATION_SETTINGS.items())
+
+
+def test_an_option_overrides_the_options_file_and_is_checked_while_parsing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    p = _calibrate_parser()
+    args = p.parse_args(["b", "--method", "impact", "--out", "o", "--n-areas", "9", "--no-compare"])
+    assert (args.n_areas, args.compare, args.fmax, args.ident_rel) == (9, False, None, None)
+    code = main(["calibrate", str(tmp_path), "--method", "impact", "--out", str(tmp_path / "o"), "--n-areas", "8"])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert "--n-areas = 8: must be odd" in err and "\n" not in err
+    assert main(["calibrate", str(tmp_path), "--method", "impact", "--out", str(tmp_path / "o"),
+                 "--interval", "bootstrap"]) == 2
+    assert "--interval" in capsys.readouterr().err
