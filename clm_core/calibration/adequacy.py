@@ -227,11 +227,6 @@ def delay_columns(Hm: CArray, W: Array, s: CArray) -> CArray:
     return np.asarray(-s[:, None] * Hm * W)
 
 
-def is_finite_test(t: ExtensionTest | None) -> bool:
-    """A test that was computed and has a finite statistic."""
-    return t is not None and math.isfinite(t.statistic)
-
-
 #: Delay handling of the impact fit (:func:`clm_core.calibration.impact.fit_impact`).
 DELAY_MODES: tuple[str, ...] = ("check", "fit")
 Checks = tuple[ExtensionTest | None, ExtensionTest | None, FirstVsFit | None]

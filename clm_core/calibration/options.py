@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import yaml
@@ -293,10 +293,6 @@ class CalibrationOptions:
         except yaml.YAMLError as exc:
             raise CalibrationError(f"options: not valid YAML ({exc})") from None
         return cls.from_mapping(data or {})
-
-    def with_values(self, **values: Any) -> CalibrationOptions:
-        """A copy with some values changed (None values are ignored)."""
-        return replace(self, **{k: v for k, v in values.items() if v is not None})
 
     def to_dict(self) -> dict[str, Any]:
         """Plain mapping (YAML/JSON-ready), the inverse of :meth:`from_mapping`."""

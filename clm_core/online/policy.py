@@ -101,11 +101,6 @@ class InputPolicy:
         names = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in values.items() if k in names and v is not None})
 
-    @classmethod
-    def setting_names(cls) -> tuple[str, ...]:
-        """The run settings of the policy (:data:`clm_core.settings.ONLINE_POLICY`; not ``tensile_tolerance``)."""
-        return settings.ONLINE_POLICY
-
     def limits(self, max_spread: float) -> Array:
         """The value rules as the kernels take them (``FrameLoads.limits``).
 

@@ -481,8 +481,3 @@ def column_text(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return " ; ".join(str(v) for v in value)
     return value
-
-
-def describe_values(values: Mapping[str, Any]) -> str:
-    """``speed = 60.0, soil = 'soft'`` (for messages)."""
-    return _describe(values)

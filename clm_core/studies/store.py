@@ -18,7 +18,7 @@ import json
 import math
 import os
 import uuid
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -149,8 +149,3 @@ def read_table(path: str | Path) -> list[dict[str, Any]]:
     import pyarrow.parquet as pq
 
     return list(pq.read_table(path).to_pylist())
-
-
-def records_in_order(records: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    """Records sorted by their case ``index``."""
-    return sorted(records, key=lambda r: int(r.get("index", 0)))
