@@ -15,9 +15,9 @@ import pytest
 
 @pytest.fixture(autouse=True)
 def _check_every_figure() -> Iterator[None]:
-    """Every figure a test renders (clm_core.outputs.plots) passes the checks of tests/io/figure_checks.py."""
+    """Every figure a test renders (clm_core.outputs.plots) passes the checks of tests/outputs/figure_checks.py."""
     from clm_core.outputs import plots
-    from tests.io.figure_checks import figure_problems, png_problems
+    from tests.outputs.figure_checks import figure_problems, png_problems
 
     seen: list[tuple[Path, list[str]]] = []
 

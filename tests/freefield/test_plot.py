@@ -1,4 +1,4 @@
-"""receivers.png passes the report rules (tests/io/figure_checks.py, applied by tests/conftest.py)."""
+"""receivers.png passes the report rules (tests/outputs/figure_checks.py, applied by tests/conftest.py)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """clm_ros.launcher (``clm demo``): its defaults are the schema's, its plots pass the report rules.
 
 The core side of both checks is in tests/test_settings.py (demo.yaml) and
-tests/io/test_plots.py (every figure of clm_core.outputs.plots); the launcher
+tests/outputs/test_plots.py (every figure of clm_core.outputs.plots); the launcher
 lives in clm_ros, hence here. The demo plots are drawn from the shipped demo
 bag by :func:`clm_ros.launcher.analyse_bag`, no DDS involved.
 """
@@ -19,8 +19,8 @@ from matplotlib.figure import Figure
 from clm_core.errors import ParameterError
 from clm_core.outputs import plots
 from clm_core.settings import SETTINGS
-from tests.io.figure_checks import figure_problems, png_problems
-from tests.io.test_plots import DEMO_FIGURES, check_wheel_panels
+from tests.outputs.figure_checks import figure_problems, png_problems
+from tests.outputs.test_plots import DEMO_FIGURES, check_wheel_panels
 
 REPO = Path(__file__).resolve().parents[2]
 DEMO_BAG = REPO / "bags" / "demo" / "demo_bag"

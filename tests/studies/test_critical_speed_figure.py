@@ -1,6 +1,6 @@
 """The critical-speed figure of ``clm study``: speed in km/h with m/s above, every soil's shear-wave and Rayleigh
 speed marked, the peak of each curve marked, a caption that says what was varied; it passes the suite's figure
-checks (:mod:`tests.io.figure_checks`). And the Rayleigh speed it marks, against closed forms."""
+checks (:mod:`tests.outputs.figure_checks`). And the Rayleigh speed it marks, against closed forms."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from clm_core.outputs import plots
 from clm_core.outputs.plots.studies import KMH, plot_critical_speed, soil_wave_speeds
 from clm_core.profile import Layer, load_profile
-from tests.io.figure_checks import figure_problems, png_problems
+from tests.outputs.figure_checks import figure_problems, png_problems
 
 ROOT = Path(__file__).resolve().parents[2]
 

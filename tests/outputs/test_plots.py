@@ -4,7 +4,7 @@ Every figure the commands write is rendered here from real runs into
 ``tmp_path`` (receptance, soil chain, moving loads, vehicle, calibration,
 soil calibration; the demo plots of clm_ros: tests/ros/test_launcher.py) and
 checked: axes labelled with units, legends off the curve extremes, valid
-non-blank PNGs (tests/io/figure_checks.py), plus the specific points of
+non-blank PNGs (tests/outputs/figure_checks.py), plus the specific points of
 issue 13 item 8. The root conftest applies the same checks to every figure
 any other test renders.
 """
@@ -28,7 +28,7 @@ from clm_core.outputs.plots import _base
 from clm_core.outputs.report_index import write_index
 from clm_core.params import load_soil
 from clm_core.synthetic import add_noise, simulate_impact, write_bag
-from tests.io.figure_checks import curve_extremes, figure_problems, png_problems
+from tests.outputs.figure_checks import curve_extremes, figure_problems, png_problems
 
 REPO = Path(__file__).resolve().parents[2]
 
