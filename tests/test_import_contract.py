@@ -109,6 +109,19 @@ def test_no_upward_import_between_the_layers_of_the_core() -> None:
     assert found == [], "upward imports (a lower layer importing a higher one):\n" + "\n".join(found)
 
 
+#: Peers of one layer that stay independent (neither imports the other): the half-space is calibrated by the
+#: synthetic references and ``clm soil-calibrate``, not by ``calibration``; the online model and the vehicle meet
+#: only in the nodes.
+APART = (("halfspace", "calibration"), ("online", "vehicle"))
+
+
+def test_independent_peers_do_not_import_each_other() -> None:
+    pairs = {frozenset(p) for p in APART}
+    found = [str(i) for i in codeshape.imports()
+             if frozenset((codeshape.unit_of(i.module), codeshape.unit_of(i.target))) in pairs]
+    assert found == [], "\n".join(found)
+
+
 def test_io_is_the_bottom_of_the_edges() -> None:
     """``io`` (time base, codec, bags, files) imports nothing of the core but the bottom layer; nothing of it
     is left that draws or writes results (those live in ``outputs``)."""

@@ -386,9 +386,9 @@ def _front(block: Any) -> Any:
 
 
 def _write_bag(d_out: Path, storage: str) -> None:
-    """DIR/bag from DIR/history.npz (clm_core.io.bags.write_history_bag; rosbags only, no middleware)."""
-    from clm_core.io.bags import write_history_bag
+    """DIR/bag from DIR/history.npz (clm_core.outputs.history_bag.write_history_bag; rosbags only, no middleware)."""
     from clm_core.outputs.history import load_history
+    from clm_core.outputs.history_bag import write_history_bag
 
     bag = d_out / "bag"
     if bag.exists():  # --overwrite (output_dir refused it otherwise)

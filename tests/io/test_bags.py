@@ -16,7 +16,7 @@ import yaml
 
 from clm_core.io import messages as msgs
 from clm_core.io._rosbag2 import emit_yaml, qos_profile, qos_yaml
-from clm_core.io.bags import BagReader, BagWriter, default_qos, storage_of, write_history_bag
+from clm_core.io.bags import BagReader, BagWriter, default_qos, storage_of
 from clm_core.io.errors import BagError
 from clm_core.io.timebase import NS
 
@@ -204,7 +204,10 @@ def test_topics_of_the_wrong_type_are_named(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("storage", STORAGES)
 def test_history_bag_round_trip(tmp_path: Path, storage: str) -> None:
+    """clm_core.outputs.history_bag (``clm simulate --bag``) through the bottom layer's writer and codec."""
     from types import SimpleNamespace
+
+    from clm_core.outputs.history_bag import write_history_bag
 
     rng = np.random.default_rng(3)
     n_t, n_w, n_s = 5, 3, 7
