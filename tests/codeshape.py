@@ -235,6 +235,28 @@ def reach_ins(probes: dict[str, str] | None = None) -> list[ReachIn]:
     return out
 
 
+def core_private_imports(root: Path | None = None, source: str | None = None) -> list[str]:
+    """Imports of a private module or name of ``clm_core`` by the ROS package (``ros2_ws/src`` by default; or
+    ``source``, one probe text): ``from clm_core.x._mod import n``, ``from clm_core.x import _n``,
+    ``import clm_core.x._mod``. The ROS layer uses the core's public API only."""
+    texts = ([("probe.py", source)] if source is not None
+             else [(str(p.relative_to(ROOT)), p.read_text(encoding="utf-8"))
+                   for p in sorted((root or ROOT / "ros2_ws" / "src").rglob("*.py"))])
+    out = []
+    for name, text in texts:
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("clm_core"):
+                mod = node.module or ""
+                for a in node.names:
+                    if _private(a.name) or any(_private(p) for p in mod.split(".")):
+                        out.append(f"{name}:{node.lineno} from {mod} import {a.name}")
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.startswith("clm_core.") and any(_private(p) for p in a.name.split(".")):
+                        out.append(f"{name}:{node.lineno} import {a.name}")
+    return out
+
+
 def long_modules(limit: int = 700) -> list[tuple[str, int]]:
     """Modules of clm_core longer than ``limit`` lines."""
     return [(m, n) for m, p in modules() if (n := len(p.read_text(encoding="utf-8").splitlines())) > limit]

@@ -26,6 +26,17 @@ def test_private_modules_and_names_are_imported_only_inside_their_unit() -> None
     assert found == [], "\n".join(found)
 
 
+def test_the_ros_layer_imports_only_the_cores_public_names() -> None:
+    """clm_ros (nodes, its ``clm`` commands) imports no private module or name of clm_core (its commands
+    imported ``clm_core.commands._common``/``_options``: now the public ``clm_core.commands``)."""
+    assert codeshape.core_private_imports() == []
+    probe = ("from clm_core.commands._common import add_command\nfrom clm_core.solver import _kernels, TrackSimulator\n"
+             "import clm_core.io._rosbag2\nfrom clm_core.commands import add_setting\n")
+    assert [s.split(" ", 1)[1] for s in codeshape.core_private_imports(source=probe)] == [
+        "from clm_core.commands._common import add_command", "from clm_core.solver import _kernels",
+        "import clm_core.io._rosbag2"]
+
+
 def test_the_scan_sees_a_reach_in() -> None:
     """The scanner is not blind: in a probe module of ``online``, ``sim._s`` (the simulator's state) and an
     import of the solver's private kernel module are found; ``self._s`` and ``rec._of`` (online's own) are not."""

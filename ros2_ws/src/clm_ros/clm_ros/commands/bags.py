@@ -9,8 +9,7 @@ import sys
 import time
 from typing import Any
 
-from clm_core.commands._common import add_command
-from clm_core.commands._options import add_setting
+from clm_core.commands import add_command, add_setting
 
 
 def register(sub: Any) -> None:

@@ -9,8 +9,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from clm_core.commands._common import add_command
-from clm_core.commands._options import add_overwrite
+from clm_core.commands import add_command, add_overwrite
 from clm_ros.run_settings import NAMES
 
 
@@ -30,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     Starts the vehicle simulator node and the track-soil node as separate processes (loopback DDS), records the run
     to a bag and renders plots in --out.
     """
-    from clm_core.commands._common import check_output, quantity
+    from clm_core.commands import check_output, quantity
     from clm_ros.launcher import run_demo
     from clm_ros.run_settings import RunSettings
 

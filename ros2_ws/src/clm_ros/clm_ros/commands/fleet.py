@@ -11,8 +11,7 @@ import argparse
 import sys
 from typing import Any
 
-from clm_core.commands._common import add_command
-from clm_core.commands._options import add_overwrite
+from clm_core.commands import add_command, add_overwrite
 from clm_ros.run_settings import NAMES
 
 
@@ -51,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     order; answers equal to the offline replay of its recorded wheel loads) and writes per-train and overall figures
     to DIR/summary.json.
     """
-    from clm_core.commands._common import check_output, quantity
+    from clm_core.commands import check_output, quantity
     from clm_ros.errors import ClmRosError
     from clm_ros.fleet import check_fleet, namespaces, run_fleet
     from clm_ros.run_settings import RunSettings

@@ -6,8 +6,15 @@ import argparse
 import sys
 from typing import Any
 
-from clm_core.commands._common import add_command, add_model_arguments, add_window_arguments, model_from_args, quantity
-from clm_core.commands._options import add_overwrite, add_setting
+from clm_core.commands import (
+    add_command,
+    add_model_arguments,
+    add_overwrite,
+    add_setting,
+    add_window_arguments,
+    model_from_args,
+    quantity,
+)
 from clm_core.settings import ONLINE_POLICY
 
 
@@ -52,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     import shutil
     from pathlib import Path
 
-    from clm_core.commands._common import remove_bag
+    from clm_core.commands import remove_bag
     from clm_core.online import OnlineTrackModel
     from clm_core.progress import Progress
     from clm_ros.errors import ClmRosError

@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from clm_core.commands._common import add_command
-from clm_core.commands._options import add_setting
+from clm_core.commands import add_command, add_setting
 
 #: The default --rate [Hz] (clm_ros.view.DEFAULT_RATE; repeated here so that `clm --help` imports no rclpy).
 DEFAULT_RATE = 100.0
