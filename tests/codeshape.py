@@ -271,6 +271,12 @@ if __name__ == "__main__":
     print(f"private reach-ins across units: {len(ri)}")
     for r in ri:
         print("  ", r)
+    cp = core_private_imports()
+    print(f"private imports of clm_core by the ROS package: {len(cp)}")
+    for c in cp:
+        print("  ", c)
     lm = long_modules()
     print(f"modules over 700 lines: {len(lm)}", *(f"{m} {n}" for m, n in lm))
+    print("longest module: {} ({} lines)".format(*max(((m, len(p.read_text(encoding="utf-8").splitlines()))
+                                                      for m, p in modules()), key=lambda x: x[1])))
     sys.exit(0)
