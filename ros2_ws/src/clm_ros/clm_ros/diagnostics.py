@@ -37,6 +37,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
+from clm_core.io.timebase import NS, lag_figures
 from clm_core.online import OnlineStats
 
 OK = DiagnosticStatus.OK
@@ -159,10 +160,10 @@ class LagMonitor:
         if now <= 0:
             return LagSummary(0, nan, nan, nan, nan, waiting, nan,
                               "use_sim_time is set and no /clock has arrived")
-        lag = np.concatenate([(t - np.asarray(st, dtype=np.int64)) * 1e-9 for t, st in parts if t > 0]
-                             or [np.zeros(0)])
-        ok = np.abs(lag) < CLOCK_MISMATCH_S
-        bad = int(lag.size - ok.sum()) + sum(len(st) for t, st in parts if t <= 0)
+        lag_ns = np.concatenate([t - np.asarray(st, dtype=np.int64) for t, st in parts if t > 0]
+                                or [np.zeros(0, dtype=np.int64)])
+        ok = np.abs(lag_ns) < CLOCK_MISMATCH_S * NS
+        bad = int(lag_ns.size - ok.sum()) + sum(len(st) for t, st in parts if t <= 0)
         if abs(oldest) >= CLOCK_MISMATCH_S:
             oldest, bad = nan, bad + 1
         if bad and not ok.any():
@@ -170,12 +171,13 @@ class LagMonitor:
                             "/clock)")
         elif ok.any():
             self._reason = ""
-        lag = lag[ok]
-        if not lag.size:
+        good = lag_ns[ok]
+        if not good.size:
             return LagSummary(0, nan, nan, nan, nan, waiting, oldest, self._reason)
+        f = lag_figures(good)  # the one lag statistic (median, p99, max) of the suite
         return LagSummary(
-            int(lag.size), float(np.median(lag)), float(np.percentile(lag, 99)), float(lag.max()),
-            float(np.mean(lag > max_feedback_delay)), waiting, oldest, min=float(lag.min()),
+            f.n, f.median_s, f.p99_s, f.max_s, float(np.mean(good > max_feedback_delay * NS)), waiting, oldest,
+            min=float(good.min()) / NS,
         )
 
 
@@ -200,10 +202,19 @@ def lag_level(lag: LagSummary, lag_budget: float, max_feedback_delay: float) -> 
                        f"(max_feedback_delay = {1e3 * max_feedback_delay:g} ms)")
     if worst > lag_budget:
         return WARN, f"lag {1e3 * worst:.2f} ms over lag_budget = {1e3 * lag_budget:g} ms"
-    if lag.answers and lag.min < -lag_budget:  # an answer published before its stamp's time: the clock lags
-        return WARN, (f"negative lag {1e3 * lag.min:.1f} ms: the node's clock is behind the wheel-load stamps "
-                      "(sim time: /clock behind or stopped; else the sender's clock is ahead); lags unreliable")
+    behind = clock_behind(lag, lag_budget)
+    if behind:
+        return WARN, behind
     return OK, "running" if lag.answers else "running; no wheel loads in the last period"
+
+
+def clock_behind(lag: LagSummary, lag_budget: float) -> str:
+    """The warning when the period's smallest lag is below ``-lag_budget`` [s] (an answer published before its
+    stamp's time: the node's clock is behind the stamps); '' when not (or no answer to tell)."""
+    if not (lag.available and lag.answers and lag.min < -lag_budget):
+        return ""
+    return (f"negative lag {1e3 * lag.min:.1f} ms: the node's clock is behind the wheel-load stamps (sim time: "
+            "/clock behind or stopped; else the sender's clock is ahead); lags unreliable")
 
 
 def lag_values(lag: LagSummary) -> dict[str, Any]:

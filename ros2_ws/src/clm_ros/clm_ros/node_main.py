@@ -307,6 +307,27 @@ def _spin_until(executor: Executor, done: Callable[[], bool], timeout: float) ->
         executor.spin_once(timeout_sec=0.02)
 
 
+def guard_change_state(node: Any, log: Any, state: Callable[[], str]) -> None:
+    """Make a lifecycle ``node`` answer ``change_state`` with success = false for a transition its current state
+    does not have (rclpy raises there, and the caller would wait for an answer forever); logged on ``log``
+    (a :class:`clm_ros.node_log.NodeLog`) with ``state()``."""
+    srv = getattr(node, "_service_change_state", None)
+    if srv is None:
+        return
+    inner = srv.callback
+
+    def guarded(request: Any, response: Any) -> Any:
+        try:
+            return inner(request, response)
+        except Exception as exc:  # RCLError: no such transition from this state
+            log.warning(f"transition {request.transition.id} {request.transition.label!r} refused in state "
+                        f"{state()}: {exc}")
+            response.success = False
+            return response
+
+    srv.callback = guarded
+
+
 def freeze_heap() -> None:
     """Move every object alive now out of the cyclic garbage collector's reach (``gc.freeze``).
 

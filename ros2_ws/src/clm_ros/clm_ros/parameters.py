@@ -59,6 +59,12 @@ NODE_SETTINGS: dict[str, Setting[Any]] = {
 }
 
 
+#: The track node's own settings (besides the model factory's, :data:`clm_core.online.model.FACTORY_SETTINGS`).
+TRACK_NODE_SETTINGS: tuple[str, ...] = ("publish_every", "frame_id", "diagnostics_period", "autostart", "lag_budget",
+                                        "max_feedback_delay", "monitored_sleepers", "monitored_positions",
+                                        "markers_period", "realtime_priority")
+
+
 def lookup(name: str | Setting[Any]) -> Setting[Any]:
     """A setting by name: the nodes' own (:data:`NODE_SETTINGS`), then the run settings and model parameters."""
     if isinstance(name, Setting):
