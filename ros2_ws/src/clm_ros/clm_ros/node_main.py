@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import gc
 import os
+import select
 import signal
 import sys
 import threading
@@ -275,11 +276,23 @@ def _exit_code(nodes: tuple[Any, ...]) -> int | None:
 CHECK_PERIOD = 0.02
 
 
+#: Longest wait of the wait-set loop on the nodes' own fds before the executor is served [s] (services, timers).
+WAIT_SLICE = 0.002
+
+
 def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: float) -> int:
-    """Spin until a signal, the end of the context or a node's ``exit_code``; return the exit code."""
+    """Spin until a signal, the end of the context or a node's ``exit_code``; return the exit code.
+
+    A node with a ``wait_fd()`` (the track node with ``answer_loop`` = ``waitset``) that returns an fd >= 0 is
+    served by a wait-set loop: this thread waits on the fds itself (``select``, at most :data:`WAIT_SLICE`) and
+    calls the node's ``serve_fd()`` when one is readable (its data path runs here, with no hand-over to the
+    executor), and serves the executor (``spin_once(0)``: services, timers) when the wait ran out or
+    :data:`WAIT_SLICE` has passed since it last did. Otherwise the executor alone, as ever."""
     serve = [node.serve_due for node in _having(nodes, "serve_due")]
+    waiters = _having(nodes, "wait_fd")
     spin_once, clock = executor.spin_once, time.monotonic
     check = 0.0  # the context and the exit codes are checked every CHECK_PERIOD (a message each ms otherwise)
+    served = 0.0  # when the wait-set loop last served the executor
     while not stop.requested():
         now = clock()
         if now >= check:
@@ -290,8 +303,17 @@ def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: f
             if code is not None:
                 return code
         wait = min([poll, *(max(s(), 0.0) for s in serve)]) if serve else poll
+        fds = {fd: node for node in waiters if (fd := node.wait_fd()) >= 0}
         try:
-            spin_once(timeout_sec=wait)
+            if not fds:
+                spin_once(timeout_sec=wait)
+                continue
+            readable = select.select(list(fds), [], [], min(wait, WAIT_SLICE))[0]
+            for fd in readable:
+                fds[fd].serve_fd()
+            if not readable or clock() - served >= WAIT_SLICE:
+                served = clock()
+                spin_once(timeout_sec=0)
         except Exception as exc:  # a callback's failure must not end the node
             if stop.requested() or not rclpy.ok():
                 break

@@ -96,6 +96,12 @@ MONITORED_POSITIONS: Setting[str] = Setting(
     "monitored_positions", str, "", "m", "positions along the line whose nearest sleepers are monitored too "
     "(after monitored_sleepers), comma-separated", rule=_optional_numbers_rule, read_only=True,
 )
+ANSWER_LOOP: Setting[str] = Setting(
+    "answer_loop", str, "executor", "-", "how the track node waits for wheel loads: executor = a thread waits on "
+    "the arrival fd and hands each arrival to the executor; waitset = the process's loop waits on the arrival fd "
+    "itself and answers in its own thread, serving the executor in between (benchmarks/node_cpu.py)",
+    choices=("executor", "waitset"), read_only=True,
+)
 MARKERS_PERIOD: Setting[float] = Setting(
     "markers_period", float, 0.1, "s", "period of the visualization_msgs/MarkerArray of the window (topic "
     "track_markers; wall clock); 0: none", minimum=0.0, maximum=3600.0, read_only=True,
@@ -170,6 +176,7 @@ NODE_SETTINGS: dict[str, Setting[Any]] = {
                 "service and its answer", minimum=0.1, maximum=600.0),
         RATE, CLOSED_LOOP,
         LAG_BUDGET, REALTIME_PRIORITY, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS, MARKERS_PERIOD,
+        ANSWER_LOOP,
         TRAINS, HEADWAY, TRAIN_PAUSE, TRACK_NODE, ANSWER_TIMEOUT, EXIT_WHEN_DONE, START_SIGNAL,
         DOMAIN_ID, FLEET_TRAINS, FLEET_FIRST_INDEX,
         # ---- the calibration node's own settings (calibration_node.py: DEFAULT_METHOD, MAX_QUEUED, ALLOWED_ROOTS)
@@ -180,7 +187,7 @@ NODE_SETTINGS: dict[str, Setting[Any]] = {
 #: The track node's own settings (besides the model factory's, :data:`clm_core.online.model.FACTORY_SETTINGS`).
 TRACK_NODE_SETTINGS: tuple[str, ...] = ("publish_every", "frame_id", "diagnostics_period", "autostart", "lag_budget",
                                         "max_feedback_delay", "monitored_sleepers", "monitored_positions",
-                                        "markers_period", "realtime_priority")
+                                        "markers_period", "realtime_priority", "answer_loop")
 
 
 def lookup(name: str | Setting[Any]) -> Setting[Any]:

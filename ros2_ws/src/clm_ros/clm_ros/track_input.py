@@ -61,9 +61,11 @@ class WheelLoadInput:
     """
 
     def __init__(self, node: Node, counters: Counters, stats: OnlineStats, log: NodeLog, stop: StopSignals,
-                 answer: Callable[[list[bytes]], None], reject: Callable[[Reason, str], None]) -> None:
+                 answer: Callable[[list[bytes]], None], reject: Callable[[Reason, str], None],
+                 doorbell: bool = True) -> None:
         self.node, self.counters, self.stats, self.log, self._stop = node, counters, stats, log, stop
         self._answer, self._reject = answer, reject
+        self._doorbell = doorbell  # False: the process's loop waits on the arrival fd (arrival_fd, serve_arrivals)
         self.sub: GidSubscription | None = None
         self.sources = Sources()  # which publisher of wheel_loads is the stream (clm_ros.sources)
         self.accepting = False
@@ -74,6 +76,17 @@ class WheelLoadInput:
         self.matched_publishers = 0  # wheel-load writers the subscription has matched (its own side of discovery)
         self.new_stream = False  # every source left, or the source left the graph: the data path restarts the state
         self._peer_lost = False
+
+    def arrival_fd(self) -> int:
+        """The subscription's arrival fd when the process's loop waits on it (``doorbell`` false), else -1."""
+        sub = self.sub
+        return sub.fileno() if sub is not None and not self._doorbell else -1
+
+    def serve_arrivals(self) -> None:
+        """The arrival fd is readable: take and answer what has arrived."""
+        sub = self.sub
+        if sub is not None:
+            sub.serve_arrivals()
 
     def values(self) -> dict[str, Any]:
         """The input's ``/diagnostics`` key-values."""
@@ -97,7 +110,8 @@ class WheelLoadInput:
         events = SubscriptionEventCallbacks(incompatible_qos=self._on_incompatible_qos, message_lost=self._on_lost)
         sub = self.node.create_subscription(WheelLoads, "wheel_loads", lambda _raw: None, qos.wheel_loads_qos(),
                                             qos_overriding_options=opts, event_callbacks=events, raw=True)
-        self.sub = GidSubscription(self.node, sub, self._on_wheel_loads)  # taken with the publisher's GID
+        # taken with the publisher's GID
+        self.sub = GidSubscription(self.node, sub, self._on_wheel_loads, doorbell=self._doorbell)
         pubs = self.node.get_publishers_info_by_topic(self.sub.topic_name)
         self.reliability = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
         self._recreate = False

@@ -30,13 +30,11 @@ are discarded unprocessed, counted as ``not_accepted``); **cleaning up**
 (drop the model and the answer publishers); **finalized** (never answers
 again).
 
-With ``autostart`` (default true) it configures and activates itself.
-Parameters are validated in the on-set callback (nothing changes there) and
-applied in the post-set callback: a physics change (a model parameter, the
-input policy) swaps a new model in; the state restarts at the next message.
+With ``autostart`` (default true) it configures and activates itself. Parameters are validated in
+the on-set callback (nothing changes there) and applied in the post-set callback: a physics change (a
+model parameter, the input policy) swaps a new model in; the state restarts at the next message.
 
-Run: ``python -m clm_ros.track_node --ros-args -p soil:=haren -p dt:=1e-4`` (or
-``ros2 run clm_ros track_node`` in a full ROS install).
+Run: ``python -m clm_ros.track_node --ros-args -p soil:=haren`` (``ros2 run clm_ros track_node``).
 """
 
 from __future__ import annotations
@@ -124,7 +122,9 @@ class TrackNode(LifecycleNode):
         self._sim_time = bool(self._p("use_sim_time"))
         self._lag = LagMonitor(self._now_ns)
         self.input = WheelLoadInput(self, self.counters, self.stats, self.log, stop or StopSignals(), self._answer,
-                                    lambda reason, text: self.path.reject(reason, text) if self.path else None)
+                                    lambda reason, text: self.path.reject(reason, text) if self.path else None,
+                                    doorbell=self._p("answer_loop") == "executor")
+        self.wait_fd, self.serve_fd = self.input.arrival_fd, self.input.serve_arrivals  # the wait-set loop's hooks
         self._status = TrackStatus(self.input)
         # one /diagnostics publisher for the node's whole life (never one per configure)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
