@@ -31,7 +31,7 @@ def _stream(n: int, first: int = 0) -> list[tuple[int, np.ndarray, np.ndarray]]:
     return [(5 * NS + k * 10**6, 30.0 - OFF + 30.0 * k * 1e-3, np.array([85e3, 85e3])) for k in range(first, n)]
 
 
-def _msgs(stream):  # type: ignore[no-untyped-def]
+def _msgs(stream: list[tuple[int, np.ndarray, np.ndarray]]) -> list[object]:
     return [rclpy_wheel_loads(t, [0, 1], p, f) for t, p, f in stream]
 
 

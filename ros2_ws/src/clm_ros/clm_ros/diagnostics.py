@@ -106,9 +106,11 @@ class LagSummary:
     late_fraction: float
     """Fraction of the period's answers older than ``max_feedback_delay``."""
     waiting: int
-    """Frames taken but not answered yet."""
+    """Most frames taken but not yet answered at one time in the period (a state of the period, not a sample of
+    the instant the status is made: a backlog worked off in chunks shows even when the status is made between
+    two chunks)."""
     oldest_waiting: float
-    """Age of the oldest of them [s] (NaN: none)."""
+    """Age of the oldest frame waiting now [s] (NaN: none)."""
     reason: str = ""
     """Why the lag is not available ('' when it is)."""
     min: float = float("nan")
@@ -135,6 +137,7 @@ class LagMonitor:
         self.now_ns = now_ns
         self._answers: list[tuple[int, list[int]]] = []  # (publish time, stamps) [ns]
         self._waiting = 0
+        self._peak = 0  # most frames waiting at once since the last summary
         self._oldest_ns = 0
         self._reason = ""  # why the last answers' lag could not be measured (kept through idle periods)
 
@@ -142,6 +145,8 @@ class LagMonitor:
         """The data path took ``count`` frames (0: none left), the oldest stamped ``oldest_stamp_ns``."""
         self._waiting = count
         self._oldest_ns = oldest_stamp_ns
+        if count > self._peak:
+            self._peak = count
 
     def answered(self, stamps_ns: list[int]) -> None:
         """Answers to frames stamped ``stamps_ns`` [ns] were just published (kept as they are: the per-message
@@ -154,8 +159,9 @@ class LagMonitor:
         parts, self._answers = self._answers, []
         now = self.now_ns()
         nan = float("nan")
-        waiting, oldest = self._waiting, nan
-        if waiting and now > 0:
+        now_waiting, oldest = self._waiting, nan
+        waiting, self._peak = max(self._peak, now_waiting), now_waiting
+        if now_waiting and now > 0:
             oldest = (now - self._oldest_ns) * 1e-9
         if now <= 0:
             return LagSummary(0, nan, nan, nan, nan, waiting, nan,
