@@ -98,8 +98,10 @@ MONITORED_POSITIONS: Setting[str] = Setting(
 )
 ANSWER_LOOP: Setting[str] = Setting(
     "answer_loop", str, "executor", "-", "how the track node waits for wheel loads: executor = a thread waits on "
-    "the arrival fd and hands each arrival to the executor; waitset = the process's loop waits on the arrival fd "
-    "itself and answers in its own thread, serving the executor in between (benchmarks/node_cpu.py)",
+    "the arrival fd and hands each arrival to the executor, in order with the node's other events (/clock); "
+    "waitset = the process's loop waits on the arrival fd itself and answers in its own thread, serving the "
+    "executor one event per 2 ms in between: ~15 % less CPU per message (benchmarks/node_cpu.py), but /clock and "
+    "other events fall behind under traffic (experimental)",
     choices=("executor", "waitset"), read_only=True,
 )
 MARKERS_PERIOD: Setting[float] = Setting(
