@@ -289,7 +289,7 @@ def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: f
     executor), and serves the executor (``spin_once(0)``: services, timers) when the wait ran out or
     :data:`WAIT_SLICE` has passed since it last did. Otherwise the executor alone, as ever."""
     serve = [node.serve_due for node in _having(nodes, "serve_due")]
-    waiters = _having(nodes, "wait_fd")
+    waiters = _having(nodes, "wait_fd")  # none unless a node waits on its own fd: the executor alone, as ever
     spin_once, clock = executor.spin_once, time.monotonic
     check = 0.0  # the context and the exit codes are checked every CHECK_PERIOD (a message each ms otherwise)
     served = 0.0  # when the wait-set loop last served the executor
@@ -303,7 +303,7 @@ def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: f
             if code is not None:
                 return code
         wait = min([poll, *(max(s(), 0.0) for s in serve)]) if serve else poll
-        fds = {fd: node for node in waiters if (fd := node.wait_fd()) >= 0}
+        fds = {fd: node for node in waiters if (fd := node.wait_fd()) >= 0} if waiters else {}
         try:
             if not fds:
                 spin_once(timeout_sec=wait)

@@ -124,16 +124,16 @@ class TrackNode(LifecycleNode):
         self.input = WheelLoadInput(self, self.counters, self.stats, self.log, stop or StopSignals(), self._answer,
                                     lambda reason, text: self.path.reject(reason, text) if self.path else None,
                                     doorbell=self._p("answer_loop") == "executor")
-        self.wait_fd, self.serve_fd = self.input.arrival_fd, self.input.serve_arrivals  # the wait-set loop's hooks
+        if self._p("answer_loop") == "waitset":  # the wait-set loop's hooks (clm_ros.node_main._spin)
+            self.wait_fd, self.serve_fd = self.input.arrival_fd, self.input.serve_arrivals
         self._status = TrackStatus(self.input)
-        # one /diagnostics publisher for the node's whole life (never one per configure)
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)  # for life, not per configure
         self.create_timer(0.25, self._housekeeping, clock=Clock(clock_type=ClockType.STEADY_TIME))
         follow(self, TRACK_STATUS, "track-soil model", lambda: (0, self._state, {  # clm_ros.latched: readiness
             "state": self._state, "wheel_load_publishers_matched": self.input.matched_publishers,
             **matched_readers(sleeper_response=self._pub_s, wheel_rail_response=self._pub_w)}))
         self._diag = DiagnosticsThread(self._publish_diagnostics, float(self._p("diagnostics_period")),
-                                       lambda exc: self._diag_failed(exc))
+                                       self._diag_failed)
         if self._p("autostart"):
             self.trigger_configure()
             if self.path is not None:
