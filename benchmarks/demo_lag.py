@@ -42,10 +42,9 @@ if str(CLM_ROS_SRC) not in sys.path:
     sys.path.insert(0, str(CLM_ROS_SRC))
 
 from clm_ros.launcher import run_demo  # noqa: E402
+from clm_ros.parameters import REALTIME_PRIORITY  # noqa: E402
 from clm_ros.processes import hold_domain_id  # noqa: E402
 from clm_ros.run_settings import RunSettings  # noqa: E402
-
-from clm_core.settings import REALTIME_PRIORITY  # noqa: E402
 
 HOG = "while True:\n    pass\n"
 

@@ -238,7 +238,8 @@ def case_track(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
     """This process feeds the node at a.rate for a.duration s."""
     n = int(a.duration * a.rate)
     period = round(NS / a.rate)
-    with track_node({"n_sleepers": a.sleepers}, log_dir, "track_node") as (proc, lis):
+    params = {"n_sleepers": a.sleepers, **getattr(a, "node_params", {})}  # node_params: benchmarks/node_cpu.py
+    with track_node(params, log_dir, "track_node") as (proc, lis):
         t0 = time.time_ns() + NS // 2
         frames = stream(n, a.rate, t0)
         raws = [encode_wheel_loads(f.stamp_ns, "track", f.ids, f.positions, f.forces) for f in frames]

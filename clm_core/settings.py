@@ -9,6 +9,11 @@ this table, so a default has one value everywhere: ``clm simulate
 --vehicle``, the vehicle node and ``clm demo`` run the same train at the same
 speed on the same rail profile unless told otherwise.
 
+This is the core's table: what the core runs. The ROS nodes' own settings
+(their real time, diagnostics and views, the vehicle node's schedule of
+trains, ``clm demo``'s and ``clm fleet``'s) are settings of the same
+:class:`Setting` kind in the table of ``clm_ros.parameters``.
+
 A setting whose default is ``None`` is *automatic*; ``none_means`` says what
 that is (e.g. ``lead_sleepers``: a third of the window). ROS parameters cannot
 be unset, so such a setting has a stand-in value there (``ros_unset``: -1,
@@ -262,21 +267,6 @@ def _numbers_rule(text: str) -> str:
     return ""
 
 
-def _indices_rule(text: str) -> str:
-    """Comma-separated whole numbers (empty: none), at most 256 of them."""
-    items = [s.strip() for s in text.split(",") if s.strip()]
-    try:
-        [int(s) for s in items]
-    except ValueError:
-        return "expected comma-separated whole numbers (global sleeper indices), or nothing"
-    return "" if len(items) <= 256 else "at most 256 sleepers"
-
-
-def _optional_numbers_rule(text: str) -> str:
-    """Comma-separated finite numbers, or nothing."""
-    return "" if not text.strip() else _numbers_rule(text)
-
-
 def number_list(text: str) -> list[float]:
     """The numbers of a comma-separated setting value (``"1, 2.5"`` -> ``[1.0, 2.5]``; empty -> ``[]``)."""
     return [float(s) for s in text.split(",") if s.strip()]
@@ -407,74 +397,6 @@ TRACK_ENGINE: Setting[str] = Setting(
     "track engine: stream = moving window, fixed = long fixed reference track (validation; slower)",
     choices=("stream", "fixed"), read_only=True,
 )
-RATE: Setting[float] = Setting("rate", float, 1000.0, "Hz", "wheel-load publication rate (1/(rate dt) must be a "
-                               "whole number)", minimum=1.0, maximum=10000.0, read_only=True)
-CLOSED_LOOP: Setting[bool] = Setting("closed_loop", bool, True, "-",
-                                     "vehicle on the track node's rail deflection (false: on the quasi-static "
-                                     "track compliance, no feedback)", read_only=True)
-
-# the track node (ROS): real time, diagnostics, live views
-LAG_BUDGET: Setting[float] = Setting(
-    "lag_budget", float, 5e-3, "s", "answer lag (wheel-load stamp to published answer, on the stamps' clock) above "
-    "which /diagnostics turns WARN", minimum=0.0, maximum=3600.0,
-)
-REALTIME_PRIORITY: Setting[int] = Setting(
-    "realtime_priority", int, 10, "-", "SCHED_FIFO priority of the node process's threads once it is built "
-    "(compilation and factorisation run before, at normal priority), so that other load on the machine does not "
-    "delay an answer; 0: normal scheduling. Needs root, CAP_SYS_NICE or `ulimit -r`; refused, the node says so "
-    "once (log, /diagnostics) and runs at normal priority", minimum=0, maximum=98, read_only=True,
-)
-MAX_FEEDBACK_DELAY: Setting[float] = Setting(
-    "max_feedback_delay", float, 0.02, "s", "closed loop: an answer older than this is too late to be used as "
-    "feedback (the vehicle ignores and counts it; the track node's /diagnostics turn ERROR)", minimum=0.0,
-    maximum=10.0, read_only=True,
-)
-MONITORED_SLEEPERS: Setting[str] = Setting(
-    "monitored_sleepers", str, "", "-", "global indices of sleepers whose fields are published as fixed series "
-    "(topic monitored_sleepers; index i always the same sleeper, NaN while outside the window), comma-separated",
-    rule=_indices_rule, read_only=True,
-)
-MONITORED_POSITIONS: Setting[str] = Setting(
-    "monitored_positions", str, "", "m", "positions along the line whose nearest sleepers are monitored too "
-    "(after monitored_sleepers), comma-separated", rule=_optional_numbers_rule, read_only=True,
-)
-MARKERS_PERIOD: Setting[float] = Setting(
-    "markers_period", float, 0.1, "s", "period of the visualization_msgs/MarkerArray of the window (topic "
-    "track_markers; wall clock); 0: none", minimum=0.0, maximum=3600.0, read_only=True,
-)
-
-# the vehicle node (ROS): its schedule of trains, the track node it waits for; clm demo's ROS domain
-TRAINS: Setting[int] = Setting(
-    "trains", int, 0, "-", "trains the vehicle node runs after activation, one after another (0: until "
-    "deactivated)", minimum=0, maximum=1_000_000, read_only=True,
-)
-HEADWAY: Setting[float] = Setting(
-    "headway", float, 0.0, "s", "time between the starts of successive trains (0: each train starts train_pause "
-    "after the previous one)", minimum=0.0, maximum=86400.0, read_only=True,
-)
-TRAIN_PAUSE: Setting[float] = Setting(
-    "train_pause", float, 2.0, "s", "least pause between the end of a train and the start of the next (longer "
-    "than the track node's max_gap, so that the track node starts each train from rest)", minimum=0.0,
-    maximum=86400.0, read_only=True,
-)
-TRACK_NODE: Setting[str] = Setting(
-    "track_node", str, "clm_track_node", "-", "name of the track node a train waits for: its wheel_loads "
-    "subscription and wheel_rail_response publisher both matched (it is active and subscribed); empty: any "
-    "subscriber", read_only=True,
-)
-ANSWER_TIMEOUT: Setting[float] = Setting(
-    "answer_timeout", float, 1.0, "s", "a train without an answer of the track node for this long reports it "
-    "silent (log, /diagnostics WARN) and runs on its predictor until answers return", minimum=0.01,
-    maximum=3600.0, read_only=True,
-)
-EXIT_WHEN_DONE: Setting[bool] = Setting(
-    "exit_when_done", bool, False, "-", "exit the vehicle node's process (code 0) after the last of `trains` "
-    "trains (a launch file ends with it)", read_only=True,
-)
-DOMAIN_ID: Setting[int] = Setting(
-    "domain_id", int, 42, "-", "ROS domain of clm demo's nodes (printed at start: watch the run live with "
-    "ROS_DOMAIN_ID set to it)", minimum=0, maximum=232, flags=("--domain",),
-)
 
 # free-field receivers (clm simulate --receivers, the receiver node; clm_core.freefield)
 RECEIVERS: Setting[str] = Setting(
@@ -499,16 +421,15 @@ RECEIVER_INFLUENCE: Setting[float] = Setting(
     minimum=1.0, maximum=1000.0,
 )
 
-#: Every run setting by name.
+#: Every run setting by name (what the core runs; the ROS nodes' own settings, their real time, diagnostics, views,
+#: schedule of trains, clm demo's and clm fleet's, are the table of ``clm_ros.parameters``).
 SETTINGS: Mapping[str, Setting[Any]] = {
     s.name: s
     for s in (
         TRACK, SOIL, MODEL, PARAMS_FILE, DT, N_SLEEPERS, ELEMENTS_PER_BAY, LEAD_SLEEPERS, MAX_GAP,
         ACCEPT_NEW_WHEELS, INITIAL_STATE, MAX_WHEEL_FORCE, MAX_WHEEL_POSITION, MAX_WHEEL_SPEED, MAX_RESPONSE_FORCE,
         MAX_RESPONSE_DISPLACEMENT, RESYNC_CONFIRM, MAX_WHEELS, DURATION, OUTPUT_DT, STORAGE, START, SPEED, LOAD, AXLES,
-        LOADS_FILE, VEHICLE, CARS, TRAIN, IRREGULARITY, SEED, WAVELENGTH_BAND, LEAD_IN, HERTZ, TRACK_ENGINE, RATE,
-        CLOSED_LOOP, LAG_BUDGET, REALTIME_PRIORITY, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS,
-        MARKERS_PERIOD, TRAINS, HEADWAY, TRAIN_PAUSE, TRACK_NODE, ANSWER_TIMEOUT, EXIT_WHEN_DONE, DOMAIN_ID,
+        LOADS_FILE, VEHICLE, CARS, TRAIN, IRREGULARITY, SEED, WAVELENGTH_BAND, LEAD_IN, HERTZ, TRACK_ENGINE,
         RECEIVERS, RECEIVERS_FILE, RECEIVER_X, RECEIVER_SOIL, RECEIVER_INFLUENCE,
     )
 }
@@ -536,11 +457,3 @@ def _model_parameter_settings() -> dict[str, Setting[float]]:
 #: Per-run overrides of the scalar model parameters, ``<section>.<name>`` (``track.kb``, ``soil.kf``):
 #: automatic (from the preset or parameter file) unless given. Validated by :class:`clm_core.params.ModelParams`.
 MODEL_PARAMETERS: Mapping[str, Setting[float]] = _model_parameter_settings()
-
-# the fleet (clm fleet, issue 15.1): N vehicle + track node pairs on one ROS graph
-FLEET_TRAINS: Setting[int] = Setting("fleet_trains", int, 2, "-", "vehicle + track node pairs started, each in "
-                                     "its namespace /train_i", minimum=1, maximum=100, flags=("--trains",))
-FLEET_FIRST_INDEX: Setting[int] = Setting("fleet_first_index", int, 0, "-", "index i of the first pair (/train_i): "
-                                          "a second host starts further pairs", minimum=0, maximum=10000,
-                                          flags=("--first-index",))
-SETTINGS = {**SETTINGS, FLEET_TRAINS.name: FLEET_TRAINS, FLEET_FIRST_INDEX.name: FLEET_FIRST_INDEX}

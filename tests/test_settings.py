@@ -54,7 +54,7 @@ def test_checks_name_the_setting_the_value_and_the_rule() -> None:
     assert settings.SPEED.parse("83.33") == 83.33
     with pytest.raises(ParameterError, match=r"^--speed = 'x': must be a real number"):
         settings.SPEED.parse("x")
-    assert settings.CLOSED_LOOP.parse("false") is False
+    assert settings.ACCEPT_NEW_WHEELS.parse("false") is False
     assert settings.LEAD_SLEEPERS.from_ros(-1) is None and settings.LEAD_SLEEPERS.from_ros(20) == 20
     assert settings.wavelength_band("2,40") == (2.0, 40.0)
 
@@ -77,7 +77,8 @@ def test_a_setting_refuses_an_invalid_default() -> None:
 
 
 def test_one_default_everywhere() -> None:
-    """The demo's run (demo.yaml) and the vehicle run use the schema's defaults (launcher: tests/ros)."""
+    """The demo's run (demo.yaml) and the vehicle run use the schema's defaults (launcher: tests/ros; the nodes' own
+    settings' defaults: tests/ros/test_node_settings.py)."""
     from clm_core.vehicle.run import VehicleRunSpec
 
     spec = VehicleRunSpec()

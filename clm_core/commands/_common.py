@@ -27,6 +27,7 @@ from typing import Any
 from clm_core.commands._options import add_setting, add_settings
 from clm_core.errors import InputError
 from clm_core.params import ModelParams
+from clm_core.settings import Setting
 
 
 def add_command(
@@ -34,7 +35,7 @@ def add_command(
     name: str,
     run: Callable[[argparse.Namespace], int],
     *,
-    settings: Iterable[str] = (),
+    settings: Iterable[str | Setting[Any]] = (),
 ) -> argparse.ArgumentParser:
     """Add one sub-command to ``sub`` and return its parser, ready for the command's own options.
 
@@ -52,8 +53,9 @@ def add_command(
     run : callable
         Runs the parsed arguments and returns the exit code (``args.func``);
         documented for the user (see above).
-    settings : iterable of str
-        Run settings (:data:`clm_core.settings.SETTINGS`) whose options come
+    settings : iterable of str or Setting
+        Settings (by name in :data:`clm_core.settings.SETTINGS`, or objects:
+        the ROS commands' from ``clm_ros.parameters``) whose options come
         first, with the schema's defaults (:func:`add_settings`).
 
     Returns

@@ -87,8 +87,8 @@ def add_setting(
     )
 
 
-def add_settings(parser: Any, names: Iterable[str]) -> None:
-    """:func:`add_setting` for each name, with the schema's defaults."""
+def add_settings(parser: Any, names: Iterable[str | Setting[Any]]) -> None:
+    """:func:`add_setting` for each setting (or name), with the schema's defaults."""
     for n in names:
         add_setting(parser, n)
 

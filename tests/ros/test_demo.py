@@ -63,14 +63,13 @@ def test_demo_domain_default_is_the_settings() -> None:
     import argparse
 
     from clm_ros.commands.demo import register
+    from clm_ros.parameters import DOMAIN_ID
     from clm_ros.run_settings import RunSettings
 
-    from clm_core import settings
-
-    assert RunSettings().domain_id == settings.DOMAIN_ID.default == 42
+    assert RunSettings().domain_id == DOMAIN_ID.default == 42
     sub = argparse.ArgumentParser().add_subparsers()
     register(sub)
-    assert sub.choices["demo"].parse_args([]).domain_id == settings.DOMAIN_ID.default
+    assert sub.choices["demo"].parse_args([]).domain_id == DOMAIN_ID.default
 
 
 def test_demo_domain_option_checked() -> None:

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from clm_ros.launcher import analyse_bag
+from clm_ros.parameters import lookup
 from clm_ros.run_settings import NAMES, RunSettings
 from matplotlib.figure import Figure
 
 from clm_core.errors import ParameterError
 from clm_core.outputs import plots
-from clm_core.settings import SETTINGS
 from tests.outputs.figure_checks import figure_problems, png_problems
 from tests.outputs.test_plots import DEMO_FIGURES, check_wheel_panels
 
@@ -31,7 +31,7 @@ def test_run_settings_defaults_are_the_schema_defaults() -> None:
     assert NAMES == ("vehicle", "speed", "duration", "track", "soil", "model", "rate", "dt", "n_sleepers",
                      "irregularity", "seed", "closed_loop", "storage", "domain_id", "realtime_priority")
     for name in NAMES:
-        assert getattr(run, name) == SETTINGS[name].default, name
+        assert getattr(run, name) == lookup(name).default, name
 
 
 def test_run_settings_are_checked_and_typed() -> None:

@@ -20,13 +20,13 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
+from clm_ros.parameters import REALTIME_PRIORITY
 from clm_ros.realtime import MAX_PRIORITY, apply_fifo, thread_scheduling
 from driver import NODE_SCRIPT, track_node
 from streams import encoded, frames
 
 from clm_core.errors import ParameterError
 from clm_core.io.timebase import NS
-from clm_core.settings import REALTIME_PRIORITY
 
 SCHED_OTHER, SCHED_FIFO = 0, 1
 CAP_SYS_NICE = 23

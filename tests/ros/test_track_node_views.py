@@ -45,7 +45,9 @@ def test_best_effort_publisher_gets_answers(ros_python, ros_domain_id) -> None: 
         got = {s.stamp_ns: s for s in drv.sleepers}
         for t, r in zip([t for t, _, _ in stream], ref):
             np.testing.assert_array_equal(got[t].soil_force, r.soil_force)
-    assert "reliability reliable -> best_effort" in run.err, run.err
+    # re-created when the best-effort publisher appeared; or best effort from the start, when a best-effort
+    # publisher of an earlier test in this domain was still in the graph as the node subscribed
+    assert "reliability reliable -> best_effort" in run.err or "/wheel_loads (best_effort)" in run.err, run.err
 
 
 def test_qos_override_forces_reliable(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]

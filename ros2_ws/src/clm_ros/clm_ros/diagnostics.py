@@ -37,6 +37,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
+from clm_core.io.timebase import NS, lag_figures
 from clm_core.online import OnlineStats
 
 OK = DiagnosticStatus.OK
@@ -46,18 +47,6 @@ STALE = DiagnosticStatus.STALE
 
 #: A lag larger than this [s] (either sign) means the stamps are not on the node's clock.
 CLOCK_MISMATCH_S = 86400.0
-
-#: Longest log line [characters] (issue 12.8): longer texts are cut with a note of what was left out.
-LOG_LINE_LIMIT = 400
-
-
-def bounded(text: str, limit: int = LOG_LINE_LIMIT) -> str:
-    """``text`` cut to at most ``limit`` characters (``... (N more characters)`` at the end when cut)."""
-    if len(text) <= limit:
-        return text
-    note = f" ... ({len(text) - limit} more characters)"
-    return text[: max(limit - len(note), 0)] + note
-
 
 @dataclass
 class Counters:
@@ -117,9 +106,11 @@ class LagSummary:
     late_fraction: float
     """Fraction of the period's answers older than ``max_feedback_delay``."""
     waiting: int
-    """Frames taken but not answered yet."""
+    """Most frames taken but not yet answered at one time in the period (a state of the period, not a sample of
+    the instant the status is made: a backlog worked off in chunks shows even when the status is made between
+    two chunks)."""
     oldest_waiting: float
-    """Age of the oldest of them [s] (NaN: none)."""
+    """Age of the oldest frame waiting now [s] (NaN: none)."""
     reason: str = ""
     """Why the lag is not available ('' when it is)."""
     min: float = float("nan")
@@ -146,6 +137,7 @@ class LagMonitor:
         self.now_ns = now_ns
         self._answers: list[tuple[int, list[int]]] = []  # (publish time, stamps) [ns]
         self._waiting = 0
+        self._peak = 0  # most frames waiting at once since the last summary
         self._oldest_ns = 0
         self._reason = ""  # why the last answers' lag could not be measured (kept through idle periods)
 
@@ -153,6 +145,8 @@ class LagMonitor:
         """The data path took ``count`` frames (0: none left), the oldest stamped ``oldest_stamp_ns``."""
         self._waiting = count
         self._oldest_ns = oldest_stamp_ns
+        if count > self._peak:
+            self._peak = count
 
     def answered(self, stamps_ns: list[int]) -> None:
         """Answers to frames stamped ``stamps_ns`` [ns] were just published (kept as they are: the per-message
@@ -165,16 +159,17 @@ class LagMonitor:
         parts, self._answers = self._answers, []
         now = self.now_ns()
         nan = float("nan")
-        waiting, oldest = self._waiting, nan
-        if waiting and now > 0:
+        now_waiting, oldest = self._waiting, nan
+        waiting, self._peak = max(self._peak, now_waiting), now_waiting
+        if now_waiting and now > 0:
             oldest = (now - self._oldest_ns) * 1e-9
         if now <= 0:
             return LagSummary(0, nan, nan, nan, nan, waiting, nan,
                               "use_sim_time is set and no /clock has arrived")
-        lag = np.concatenate([(t - np.asarray(st, dtype=np.int64)) * 1e-9 for t, st in parts if t > 0]
-                             or [np.zeros(0)])
-        ok = np.abs(lag) < CLOCK_MISMATCH_S
-        bad = int(lag.size - ok.sum()) + sum(len(st) for t, st in parts if t <= 0)
+        lag_ns = np.concatenate([t - np.asarray(st, dtype=np.int64) for t, st in parts if t > 0]
+                                or [np.zeros(0, dtype=np.int64)])
+        ok = np.abs(lag_ns) < CLOCK_MISMATCH_S * NS
+        bad = int(lag_ns.size - ok.sum()) + sum(len(st) for t, st in parts if t <= 0)
         if abs(oldest) >= CLOCK_MISMATCH_S:
             oldest, bad = nan, bad + 1
         if bad and not ok.any():
@@ -182,12 +177,13 @@ class LagMonitor:
                             "/clock)")
         elif ok.any():
             self._reason = ""
-        lag = lag[ok]
-        if not lag.size:
+        good = lag_ns[ok]
+        if not good.size:
             return LagSummary(0, nan, nan, nan, nan, waiting, oldest, self._reason)
+        f = lag_figures(good)  # the one lag statistic (median, p99, max) of the suite
         return LagSummary(
-            int(lag.size), float(np.median(lag)), float(np.percentile(lag, 99)), float(lag.max()),
-            float(np.mean(lag > max_feedback_delay)), waiting, oldest, min=float(lag.min()),
+            f.n, f.median_s, f.p99_s, f.max_s, float(np.mean(good > max_feedback_delay * NS)), waiting, oldest,
+            min=float(good.min()) / NS,
         )
 
 
@@ -212,10 +208,19 @@ def lag_level(lag: LagSummary, lag_budget: float, max_feedback_delay: float) -> 
                        f"(max_feedback_delay = {1e3 * max_feedback_delay:g} ms)")
     if worst > lag_budget:
         return WARN, f"lag {1e3 * worst:.2f} ms over lag_budget = {1e3 * lag_budget:g} ms"
-    if lag.answers and lag.min < -lag_budget:  # an answer published before its stamp's time: the clock lags
-        return WARN, (f"negative lag {1e3 * lag.min:.1f} ms: the node's clock is behind the wheel-load stamps "
-                      "(sim time: /clock behind or stopped; else the sender's clock is ahead); lags unreliable")
+    behind = clock_behind(lag, lag_budget)
+    if behind:
+        return WARN, behind
     return OK, "running" if lag.answers else "running; no wheel loads in the last period"
+
+
+def clock_behind(lag: LagSummary, lag_budget: float) -> str:
+    """The warning when the period's smallest lag is below ``-lag_budget`` [s] (an answer published before its
+    stamp's time: the node's clock is behind the stamps); '' when not (or no answer to tell)."""
+    if not (lag.available and lag.answers and lag.min < -lag_budget):
+        return ""
+    return (f"negative lag {1e3 * lag.min:.1f} ms: the node's clock is behind the wheel-load stamps (sim time: "
+            "/clock behind or stopped; else the sender's clock is ahead); lags unreliable")
 
 
 def lag_values(lag: LagSummary) -> dict[str, Any]:

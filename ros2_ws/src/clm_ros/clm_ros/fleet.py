@@ -57,10 +57,10 @@ from typing import Any
 
 import numpy as np
 
-from clm_core import settings
 from clm_core.io.files import write_json
 from clm_ros.errors import ClmRosError
 from clm_ros.harness import Train, TrainSpec, number, run_trains
+from clm_ros.parameters import lookup
 from clm_ros.processes import hold_domain_id, ros_env
 from clm_ros.run_settings import RunSettings
 
@@ -85,7 +85,7 @@ def check_fleet(trains: int, first_index: int) -> None:
     """Refuse a fleet that cannot run (ClmRosError naming the value and the rule)."""
     for name, v in (("trains", trains), ("first_index", first_index)):
         try:
-            settings.setting(f"fleet_{name}").check(v, name)
+            lookup(f"fleet_{name}").check(v, name)
         except Exception as exc:
             raise ClmRosError(str(exc)) from None
 

@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import gc
 import os
+import select
 import signal
 import sys
 import threading
@@ -90,7 +91,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import get_default_context
 
 from clm_core.errors import ClmError
-from clm_ros.diagnostics import bounded
+from clm_ros.node_log import bounded
 from clm_ros.realtime import apply_fifo
 from clm_ros.shm import clean_stale_ports, domain_of_environment
 
@@ -275,11 +276,23 @@ def _exit_code(nodes: tuple[Any, ...]) -> int | None:
 CHECK_PERIOD = 0.02
 
 
+#: Longest wait of the wait-set loop on the nodes' own fds before the executor is served [s] (services, timers).
+WAIT_SLICE = 0.002
+
+
 def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: float) -> int:
-    """Spin until a signal, the end of the context or a node's ``exit_code``; return the exit code."""
+    """Spin until a signal, the end of the context or a node's ``exit_code``; return the exit code.
+
+    A node with a ``wait_fd()`` (the track node with ``answer_loop`` = ``waitset``) that returns an fd >= 0 is
+    served by a wait-set loop: this thread waits on the fds itself (``select``, at most :data:`WAIT_SLICE`) and
+    calls the node's ``serve_fd()`` when one is readable (its data path runs here, with no hand-over to the
+    executor), and serves the executor (``spin_once(0)``: services, timers) when the wait ran out or
+    :data:`WAIT_SLICE` has passed since it last did. Otherwise the executor alone, as ever."""
     serve = [node.serve_due for node in _having(nodes, "serve_due")]
+    waiters = _having(nodes, "wait_fd")  # none unless a node waits on its own fd: the executor alone, as ever
     spin_once, clock = executor.spin_once, time.monotonic
     check = 0.0  # the context and the exit codes are checked every CHECK_PERIOD (a message each ms otherwise)
+    served = 0.0  # when the wait-set loop last served the executor
     while not stop.requested():
         now = clock()
         if now >= check:
@@ -290,8 +303,17 @@ def _spin(nodes: tuple[Any, ...], executor: Executor, stop: StopSignals, poll: f
             if code is not None:
                 return code
         wait = min([poll, *(max(s(), 0.0) for s in serve)]) if serve else poll
+        fds = {fd: node for node in waiters if (fd := node.wait_fd()) >= 0} if waiters else {}
         try:
-            spin_once(timeout_sec=wait)
+            if not fds:
+                spin_once(timeout_sec=wait)
+                continue
+            readable = select.select(list(fds), [], [], min(wait, WAIT_SLICE))[0]
+            for fd in readable:
+                fds[fd].serve_fd()
+            if not readable or clock() - served >= WAIT_SLICE:
+                served = clock()
+                spin_once(timeout_sec=0)
         except Exception as exc:  # a callback's failure must not end the node
             if stop.requested() or not rclpy.ok():
                 break
@@ -305,6 +327,27 @@ def _spin_until(executor: Executor, done: Callable[[], bool], timeout: float) ->
     deadline = time.monotonic() + timeout
     while not done() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.02)
+
+
+def guard_change_state(node: Any, log: Any, state: Callable[[], str]) -> None:
+    """Make a lifecycle ``node`` answer ``change_state`` with success = false for a transition its current state
+    does not have (rclpy raises there, and the caller would wait for an answer forever); logged on ``log``
+    (a :class:`clm_ros.node_log.NodeLog`) with ``state()``."""
+    srv = getattr(node, "_service_change_state", None)
+    if srv is None:
+        return
+    inner = srv.callback
+
+    def guarded(request: Any, response: Any) -> Any:
+        try:
+            return inner(request, response)
+        except Exception as exc:  # RCLError: no such transition from this state
+            log.warning(f"transition {request.transition.id} {request.transition.label!r} refused in state "
+                        f"{state()}: {exc}")
+            response.success = False
+            return response
+
+    srv.callback = guarded
 
 
 def freeze_heap() -> None:

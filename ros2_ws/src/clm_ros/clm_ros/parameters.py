@@ -1,14 +1,19 @@
-"""ROS parameters generated from the run-settings schema (:mod:`clm_core.settings`).
+"""The ROS nodes' settings table, and ROS parameters generated from settings (this one's and :mod:`clm_core.settings`).
 
-:func:`declare_settings` declares node parameters from
-:class:`clm_core.settings.Setting` objects: the default, a
-``ParameterDescriptor`` whose description gives the unit, range and default,
-``FloatingPointRange``/``IntegerRange`` from the setting's bounds, and
-``read_only`` for structural settings. The nodes' own operational parameters
-(frame id, timeouts) are settings of the same kind, declared below
-(:data:`NODE_SETTINGS`), so every parameter of every node is described one way.
-QoS is not among them: the nodes expose it through rclpy's standard QoS
-overrides (``qos_overrides./topic.publisher.reliability``, ...).
+Two tables of one :class:`clm_core.settings.Setting` kind, one per layer: the
+core's (:data:`clm_core.settings.SETTINGS`: what the core runs) and the
+nodes' own, here (:data:`NODE_SETTINGS`: transport, timing and real time of
+the nodes, their diagnostics and live views, the vehicle node's schedule of
+trains, ``clm demo``'s and ``clm fleet``'s options). :func:`lookup` finds a
+setting in either; the ``clm`` options of the ROS commands are generated from
+them like the core's (:func:`clm_core.commands._options.add_setting`).
+
+:func:`declare_settings` declares node parameters from settings: the
+default, a ``ParameterDescriptor`` whose description gives the unit, range
+and default, ``FloatingPointRange``/``IntegerRange`` from the setting's
+bounds, and ``read_only`` for structural settings. QoS is not among them: the
+nodes expose it through rclpy's standard QoS overrides
+(``qos_overrides./topic.publisher.reliability``, ...).
 
 Integers for real-valued parameters are accepted: ``-p track.kb:=60000000``
 on the command line and ``ros2 param set /clm_track_node track.kb 60000000``
@@ -17,25 +22,141 @@ parameter) are converted to DOUBLE before rclpy checks the type. Likewise a
 number or a list of numbers for a list-valued setting (a comma-separated
 string, e.g. ``monitored_sleepers``): ``-p monitored_sleepers:=[120,150]`` and
 ``-p monitored_sleepers:=120`` become ``"120,150"`` and ``"120"``.
+
+Light at import: the table is read by ``clm --help`` (the ROS commands'
+options), so rclpy is imported by the functions that declare parameters,
+never by the module.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Any
-
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import ParameterNotDeclaredException
-from rclpy.node import Node
-from rclpy.parameter import Parameter
+from typing import TYPE_CHECKING, Any
 
 from clm_core.errors import ClmError
 from clm_core.settings import MODEL_PARAMETERS, Setting, setting
 
-# --------------------------------------------------------------------------- the nodes' own settings
+if TYPE_CHECKING:
+    from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
 
-#: Settings of the ROS nodes that are not run settings (transport, timing of the node itself).
+
+def _indices_rule(text: str) -> str:
+    """Comma-separated whole numbers (empty: none), at most 256 of them."""
+    items = [s.strip() for s in text.split(",") if s.strip()]
+    try:
+        [int(s) for s in items]
+    except ValueError:
+        return "expected comma-separated whole numbers (global sleeper indices), or nothing"
+    return "" if len(items) <= 256 else "at most 256 sleepers"
+
+
+def _optional_numbers_rule(text: str) -> str:
+    """Comma-separated finite numbers, or nothing."""
+    try:
+        values = [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        return "expected comma-separated numbers"
+    return "" if all(math.isfinite(v) for v in values) else "expected finite numbers"
+
+
+# --------------------------------------------------------------------------- the table
+
+# the wheel-load stream (vehicle node, clm demo)
+RATE: Setting[float] = Setting("rate", float, 1000.0, "Hz", "wheel-load publication rate (1/(rate dt) must be a "
+                               "whole number)", minimum=1.0, maximum=10000.0, read_only=True)
+CLOSED_LOOP: Setting[bool] = Setting("closed_loop", bool, True, "-",
+                                     "vehicle on the track node's rail deflection (false: on the quasi-static "
+                                     "track compliance, no feedback)", read_only=True)
+
+# the track node: real time, diagnostics, live views
+LAG_BUDGET: Setting[float] = Setting(
+    "lag_budget", float, 5e-3, "s", "answer lag (wheel-load stamp to published answer, on the stamps' clock) above "
+    "which /diagnostics turns WARN", minimum=0.0, maximum=3600.0,
+)
+REALTIME_PRIORITY: Setting[int] = Setting(
+    "realtime_priority", int, 10, "-", "SCHED_FIFO priority of the node process's threads once it is built "
+    "(compilation and factorisation run before, at normal priority), so that other load on the machine does not "
+    "delay an answer; 0: normal scheduling. Needs root, CAP_SYS_NICE or `ulimit -r`; refused, the node says so "
+    "once (log, /diagnostics) and runs at normal priority", minimum=0, maximum=98, read_only=True,
+)
+MAX_FEEDBACK_DELAY: Setting[float] = Setting(
+    "max_feedback_delay", float, 0.02, "s", "closed loop: an answer older than this is too late to be used as "
+    "feedback (the vehicle ignores and counts it; the track node's /diagnostics turn ERROR)", minimum=0.0,
+    maximum=10.0, read_only=True,
+)
+MONITORED_SLEEPERS: Setting[str] = Setting(
+    "monitored_sleepers", str, "", "-", "global indices of sleepers whose fields are published as fixed series "
+    "(topic monitored_sleepers; index i always the same sleeper, NaN while outside the window), comma-separated",
+    rule=_indices_rule, read_only=True,
+)
+MONITORED_POSITIONS: Setting[str] = Setting(
+    "monitored_positions", str, "", "m", "positions along the line whose nearest sleepers are monitored too "
+    "(after monitored_sleepers), comma-separated", rule=_optional_numbers_rule, read_only=True,
+)
+ANSWER_LOOP: Setting[str] = Setting(
+    "answer_loop", str, "executor", "-", "how the track node waits for wheel loads: executor = a thread waits on "
+    "the arrival fd and hands each arrival to the executor, in order with the node's other events (/clock); "
+    "waitset = the process's loop waits on the arrival fd itself and answers in its own thread, serving the "
+    "executor one event per 2 ms in between: ~15 % less CPU per message (benchmarks/node_cpu.py), but /clock and "
+    "other events fall behind under traffic (experimental)",
+    choices=("executor", "waitset"), read_only=True,
+)
+MARKERS_PERIOD: Setting[float] = Setting(
+    "markers_period", float, 0.1, "s", "period of the visualization_msgs/MarkerArray of the window (topic "
+    "track_markers; wall clock); 0: none", minimum=0.0, maximum=3600.0, read_only=True,
+)
+
+# the vehicle node: its schedule of trains, the track node it waits for, the supervisor's start signal
+TRAINS: Setting[int] = Setting(
+    "trains", int, 0, "-", "trains the vehicle node runs after activation, one after another (0: until "
+    "deactivated)", minimum=0, maximum=1_000_000, read_only=True,
+)
+HEADWAY: Setting[float] = Setting(
+    "headway", float, 0.0, "s", "time between the starts of successive trains (0: each train starts train_pause "
+    "after the previous one)", minimum=0.0, maximum=86400.0, read_only=True,
+)
+TRAIN_PAUSE: Setting[float] = Setting(
+    "train_pause", float, 2.0, "s", "least pause between the end of a train and the start of the next (longer "
+    "than the track node's max_gap, so that the track node starts each train from rest)", minimum=0.0,
+    maximum=86400.0, read_only=True,
+)
+TRACK_NODE: Setting[str] = Setting(
+    "track_node", str, "clm_track_node", "-", "name of the track node a train waits for: its wheel_loads "
+    "subscription and wheel_rail_response publisher both matched (it is active and subscribed); empty: any "
+    "subscriber", read_only=True,
+)
+ANSWER_TIMEOUT: Setting[float] = Setting(
+    "answer_timeout", float, 1.0, "s", "a train without an answer of the track node for this long reports it "
+    "silent (log, /diagnostics WARN) and runs on its predictor until answers return", minimum=0.01,
+    maximum=3600.0, read_only=True,
+)
+EXIT_WHEN_DONE: Setting[bool] = Setting(
+    "exit_when_done", bool, False, "-", "exit the vehicle node's process (code 0) after the last of `trains` "
+    "trains (a launch file ends with it)", read_only=True,
+)
+#: The start signal: the first train of an activation waits for a start time on the latched topic ``start_at``
+#: (std_msgs/Int64, system clock [ns]) in the node's namespace: a supervisor starts a fleet's trains together or
+#: on its schedule (clm_ros.harness, clm_ros.readiness).
+START_SIGNAL: Setting[bool] = Setting(
+    "start_signal", bool, False, "-", "the first train of an activation also waits for a start time on the "
+    "latched topic start_at (std_msgs/Int64, system clock ns; a supervisor's schedule)", read_only=True)
+
+# clm demo, clm view: the ROS domain; clm fleet (issue 15.1): N vehicle + track node pairs on one ROS graph
+DOMAIN_ID: Setting[int] = Setting(
+    "domain_id", int, 42, "-", "ROS domain of clm demo's nodes (printed at start: watch the run live with "
+    "ROS_DOMAIN_ID set to it)", minimum=0, maximum=232, flags=("--domain",),
+)
+FLEET_TRAINS: Setting[int] = Setting("fleet_trains", int, 2, "-", "vehicle + track node pairs started, each in "
+                                     "its namespace /train_i", minimum=1, maximum=100, flags=("--trains",))
+FLEET_FIRST_INDEX: Setting[int] = Setting("fleet_first_index", int, 0, "-", "index i of the first pair (/train_i): "
+                                          "a second host starts further pairs", minimum=0, maximum=10000,
+                                          flags=("--first-index",))
+
+#: The ROS nodes' own settings by name (not run settings of the core: transport, timing, real time, views, the
+#: schedule of trains, the ROS commands' options).
 NODE_SETTINGS: dict[str, Setting[Any]] = {
     s.name: s
     for s in (
@@ -55,8 +176,20 @@ NODE_SETTINGS: dict[str, Setting[Any]] = {
                 minimum=0.0, maximum=3600.0, read_only=True),
         Setting("push_timeout", float, 10.0, "s", "how long a push waits for the target node's parameter "
                 "service and its answer", minimum=0.1, maximum=600.0),
+        RATE, CLOSED_LOOP,
+        LAG_BUDGET, REALTIME_PRIORITY, MAX_FEEDBACK_DELAY, MONITORED_SLEEPERS, MONITORED_POSITIONS, MARKERS_PERIOD,
+        ANSWER_LOOP,
+        TRAINS, HEADWAY, TRAIN_PAUSE, TRACK_NODE, ANSWER_TIMEOUT, EXIT_WHEN_DONE, START_SIGNAL,
+        DOMAIN_ID, FLEET_TRAINS, FLEET_FIRST_INDEX,
+        # ---- the calibration node's own settings (calibration_node.py: DEFAULT_METHOD, MAX_QUEUED, ALLOWED_ROOTS)
+        # ---- move here (issue 22, helper vehcal): define them above this table and list them on this line.
     )
 }
+
+#: The track node's own settings (besides the model factory's, :data:`clm_core.online.model.FACTORY_SETTINGS`).
+TRACK_NODE_SETTINGS: tuple[str, ...] = ("publish_every", "frame_id", "diagnostics_period", "autostart", "lag_budget",
+                                        "max_feedback_delay", "monitored_sleepers", "monitored_positions",
+                                        "markers_period", "realtime_priority", "answer_loop")
 
 
 def lookup(name: str | Setting[Any]) -> Setting[Any]:
@@ -79,6 +212,8 @@ def descriptor(s: Setting[Any], read_only: bool | None = None) -> ParameterDescr
         Override of ``s.read_only`` (a node that builds everything at start
         declares every parameter read-only).
     """
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
     text = s.help()
     if s.default is None:
         text += f" (unset: {s.ros_unset!r})"
@@ -110,24 +245,27 @@ _TEXTS_ATTR = "_clm_list_parameters"
 _SETTINGS_ATTR = "_clm_settings"
 
 
-_NUMBERS = (Parameter.Type.INTEGER, Parameter.Type.DOUBLE, Parameter.Type.INTEGER_ARRAY,
-            Parameter.Type.DOUBLE_ARRAY)
-
-
 def _as_double(p: Parameter) -> Parameter:
+    from rclpy.parameter import Parameter
+
     return Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
 
 
 def _as_text(p: Parameter) -> Parameter:
     """A number or a list of numbers as the comma-separated string of a list-valued setting."""
+    from rclpy.parameter import Parameter
+
     values = p.value if p.type_ in (Parameter.Type.INTEGER_ARRAY, Parameter.Type.DOUBLE_ARRAY) else [p.value]
     return Parameter(p.name, Parameter.Type.STRING, ",".join(str(v) for v in values))
 
 
 def _converted(p: Parameter, floats: set[str], texts: set[str]) -> Parameter:
-    if p.name in floats and p.type_ == Parameter.Type.INTEGER:
+    from rclpy.parameter import Parameter
+
+    t = Parameter.Type
+    if p.name in floats and p.type_ == t.INTEGER:
         return _as_double(p)
-    if p.name in texts and p.type_ in _NUMBERS:
+    if p.name in texts and p.type_ in (t.INTEGER, t.DOUBLE, t.INTEGER_ARRAY, t.DOUBLE_ARRAY):
         return _as_text(p)
     return p
 
@@ -136,6 +274,8 @@ def _pre_set(node: Node, params: list[Parameter]) -> list[Parameter]:
     """INTEGER values of real-valued parameters become DOUBLE, numbers of list-valued ones STRING
     (before rclpy's type check). A parameter the node does not have is refused here, by name: rclpy's own check
     names an empty list ("undeclared parameter(s): []", its generator is spent by ``any`` before it is listed)."""
+    from rclpy.exceptions import ParameterNotDeclaredException
+
     unknown = [p.name for p in params if not node.has_parameter(p.name)]
     if unknown and not getattr(node, "_allow_undeclared_parameters", False):
         raise ParameterNotDeclaredException(unknown)
@@ -146,6 +286,8 @@ def _pre_set(node: Node, params: list[Parameter]) -> list[Parameter]:
 
 def _validate(node: Node, params: list[Parameter]) -> SetParametersResult:
     """Refuse values outside the schema (choices, rules) with the setting's own message."""
+    from rcl_interfaces.msg import SetParametersResult
+
     known: dict[str, Setting[Any]] = getattr(node, _SETTINGS_ATTR)
     for p in params:
         s = known.get(p.name)

@@ -21,14 +21,9 @@ from typing import Any
 
 from rclpy.qos import QoSCompatibility, qos_check_compatible
 
-from clm_core.settings import Setting
+from clm_ros.parameters import START_SIGNAL  # the setting lives in the nodes' table (issue 22)
 
-#: The start signal: the first train of an activation waits for a start time on the latched topic ``start_at``
-#: (std_msgs/Int64, system clock [ns]) in the node's namespace: a supervisor starts a fleet's trains together or
-#: on its schedule (clm_ros.harness). The node's own setting (not a run setting of clm_core.settings).
-START_SIGNAL: Setting[bool] = Setting(
-    "start_signal", bool, False, "-", "the first train of an activation also waits for a start time on the "
-    "latched topic start_at (std_msgs/Int64, system clock ns; a supervisor's schedule)", read_only=True)
+__all__ = ["START_AT", "START_SIGNAL", "all_matched", "owned"]
 #: The latched start-time topic (relative: in the node's namespace).
 START_AT = "start_at"
 

@@ -35,7 +35,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from clm_core.settings import REALTIME_PRIORITY
+from clm_ros.parameters import REALTIME_PRIORITY
 
 __all__ = ["MAX_PRIORITY", "NOT_APPLIED", "Scheduling", "apply_fifo", "thread_scheduling"]
 

@@ -47,7 +47,8 @@ class ReceiverNode(Node):
         from clm_core.freefield import FreeFieldModel, ReceiverStream
         from clm_core.outputs.receivers import parse_receivers, receiver_soil
         from clm_core.params import model_from_settings
-        from clm_core.settings import RATE, RECEIVER_INFLUENCE, SOIL, TRACK
+        from clm_core.settings import RECEIVER_INFLUENCE, SOIL, TRACK
+        from clm_ros.parameters import RATE
 
         p = {
             "receivers": self.declare_parameter("receivers", "").value,

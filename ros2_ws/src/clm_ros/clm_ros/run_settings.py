@@ -3,7 +3,7 @@
 :class:`RunSettings` holds what a vehicle + track node pair runs: the train,
 its speed and length of run, the track and soil, the numerics, the rail
 profile, the loop, the bag storage, the ROS domain and the nodes' real-time priority. Every field is the run
-setting of :mod:`clm_core.settings` of the same name (type, unit, range and
+setting of :mod:`clm_core.settings` or :mod:`clm_ros.parameters` of the same name (type, unit, range and
 default), checked at construction. ``clm demo`` and ``clm fleet`` offer these
 options (:data:`NAMES`) and build the object from the parsed arguments
 (:meth:`RunSettings.from_args`); :func:`clm_ros.launcher.run_demo` and
@@ -23,6 +23,7 @@ from typing import Any
 
 from clm_core import settings
 from clm_core.errors import ParameterError
+from clm_ros import parameters
 
 #: Period of the nodes' /diagnostics in an online run [s] (the launcher watches the vehicle's).
 DIAGNOSTICS_PERIOD = 0.5
@@ -39,7 +40,7 @@ def _default(s: settings.Setting[Any]) -> Any:
 class RunSettings:
     """What a vehicle + track node pair runs: the train, the track and soil, the numerics, the bag, the domain.
 
-    Each field is the run setting of the same name in :mod:`clm_core.settings`
+    Each field is the setting of the same name (:func:`clm_ros.parameters.lookup`)
     (its description, type, unit, range and default: ``clm demo --help``
     shows them), checked at construction: a value outside its setting's range
     raises :class:`ParameterError` naming the field, the value and the rule.
@@ -52,19 +53,19 @@ class RunSettings:
     track: str = _default(settings.TRACK)
     soil: str = _default(settings.SOIL)
     model: str = _default(settings.MODEL)
-    rate: float = _default(settings.RATE)
+    rate: float = _default(parameters.RATE)
     dt: float = _default(settings.DT)
     n_sleepers: int = _default(settings.N_SLEEPERS)
     irregularity: str = _default(settings.IRREGULARITY)
     seed: int = _default(settings.SEED)
-    closed_loop: bool = _default(settings.CLOSED_LOOP)
+    closed_loop: bool = _default(parameters.CLOSED_LOOP)
     storage: str = _default(settings.STORAGE)
-    domain_id: int = _default(settings.DOMAIN_ID)
-    realtime_priority: int = _default(settings.REALTIME_PRIORITY)
+    domain_id: int = _default(parameters.DOMAIN_ID)
+    realtime_priority: int = _default(parameters.REALTIME_PRIORITY)
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            object.__setattr__(self, f.name, settings.setting(f.name).check(getattr(self, f.name), f.name))
+            object.__setattr__(self, f.name, parameters.lookup(f.name).check(getattr(self, f.name), f.name))
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> RunSettings:
@@ -109,3 +110,5 @@ class RunSettings:
 
 #: The run settings' names, in order: the options of ``clm demo`` and ``clm fleet`` (with the schema's defaults).
 NAMES: tuple[str, ...] = tuple(f.name for f in fields(RunSettings))
+#: Their settings (:func:`clm_ros.parameters.lookup`: the core's run settings and the nodes' own), in order.
+RUN_SETTINGS: tuple[settings.Setting[Any], ...] = tuple(parameters.lookup(name) for name in NAMES)

@@ -113,9 +113,13 @@ class GidSubscription:
     on_ready : callable
         Called on the executor thread when messages have arrived (take them with :meth:`take`). The owner also
         calls it now and then (a message that arrived before the node had an executor rang no one).
+    doorbell : bool
+        True: a thread waits on the arrival eventfd and hands the executor a task. False: no thread; the owner's
+        loop waits on :meth:`fileno` itself (a wait-set loop, :func:`clm_ros.node_main.run_node`) and calls
+        :meth:`serve_arrivals` when it is readable.
     """
 
-    def __init__(self, node: Any, sub: Any, on_ready: Callable[[], None]) -> None:
+    def __init__(self, node: Any, sub: Any, on_ready: Callable[[], None], doorbell: bool = True) -> None:
         self.node, self.sub = node, sub
         node._subscriptions.remove(sub)  # hidden from the executor: only this object takes its messages
         self._rcl, self._rcutils = _rcl()
@@ -128,14 +132,16 @@ class GidSubscription:
         self._pending = False
         self.closed = False
         # on arrival the middleware's thread calls eventfd_write(fd, n) (user_data = the fd): C only, no GIL
-        self._efd = os.eventfd(0, os.EFD_CLOEXEC)
+        self._efd = os.eventfd(0, os.EFD_CLOEXEC if doorbell else os.EFD_CLOEXEC | os.EFD_NONBLOCK)
         libc = ctypes.CDLL(None)
         address = ctypes.cast(libc.eventfd_write, ctypes.c_void_p).value
         if address is None:
             raise OSError("libc has no eventfd_write")
         self._callback = _EVENT_CALLBACK(address)
-        self._thread = threading.Thread(target=self._doorbell, name="clm_wheel_loads_doorbell", daemon=True)
-        self._thread.start()
+        self._thread: threading.Thread | None = None
+        if doorbell:
+            self._thread = threading.Thread(target=self._doorbell, name="clm_wheel_loads_doorbell", daemon=True)
+            self._thread.start()
         self._pointer = ctypes.c_void_p(sub.handle.pointer)
         if self._rcl.rcl_subscription_set_on_new_message_callback(self._pointer, self._callback,
                                                                   ctypes.c_void_p(self._efd)) != _RCL_OK:
@@ -164,6 +170,19 @@ class GidSubscription:
         if not self.closed:
             self._on_ready()
 
+    def fileno(self) -> int:
+        """The arrival eventfd (readable when messages have arrived), for a loop that waits on it itself."""
+        return self._efd
+
+    def serve_arrivals(self) -> None:
+        """Without a doorbell thread: reset the arrival eventfd and take what has arrived (``on_ready``)."""
+        try:
+            os.eventfd_read(self._efd)
+        except BlockingIOError:
+            pass
+        if not self.closed:
+            self._on_ready()
+
     @property
     def topic_name(self) -> str:
         return str(self.sub.topic_name)
@@ -189,8 +208,9 @@ class GidSubscription:
             return
         self.closed = True
         self._rcl.rcl_subscription_set_on_new_message_callback(self._pointer, _EVENT_CALLBACK(), None)
-        os.eventfd_write(self._efd, 1)  # the doorbell thread sees closed and ends
-        self._thread.join(2.0)
+        if self._thread is not None:
+            os.eventfd_write(self._efd, 1)  # the doorbell thread sees closed and ends
+            self._thread.join(2.0)
         os.close(self._efd)
         self.node._subscriptions.append(self.sub)  # back in the node's list, destroyed the node's way
         self.node.destroy_subscription(self.sub)

@@ -1,81 +1,102 @@
 """The track node's input: the ``wheel_loads`` subscription, its QoS and peers, its sources, and the taking of messages.
 
-The base class of :class:`clm_ros.track_node.TrackNode` (one node; split in
-two modules to keep each readable): the subscription exists exactly while the
-node is active (:meth:`TrackInput._subscribe`, :meth:`TrackInput._unsubscribe`);
-its reliability is resolved against the publishers present ("best available",
-:mod:`clm_ros.qos`) and followed every 0.25 s (:meth:`TrackInput._housekeeping`:
-peers that come and go, a best-effort publisher appearing); its messages are
-taken with their publisher's GID (:class:`clm_ros.sources.GidSubscription`):
-the first publisher heard is the stream's source, a second one is refused
-(``second_source``, counted) until the source leaves the graph
-(:class:`clm_ros.sources.Sources`); what is taken goes to
-:meth:`TrackInput._answer` (the track node's data path) in chunks of at most
-:data:`CHUNK`.
+A collaborator of :class:`clm_ros.track_node.TrackNode` (the subscription
+watch): the subscription exists exactly while the node is active
+(:meth:`WheelLoadInput.subscribe`, :meth:`WheelLoadInput.unsubscribe`); its
+reliability is resolved against the publishers present ("best available",
+:mod:`clm_ros.qos`) and followed every 0.25 s
+(:meth:`WheelLoadInput.housekeeping`: peers that come and go, a best-effort
+publisher appearing); its messages are taken with their publisher's GID
+(:class:`clm_ros.sources.GidSubscription`): the first publisher heard is the
+stream's source, a second one is refused (``second_source``, counted) until
+the source leaves the graph (:class:`clm_ros.sources.Sources`); what is taken
+goes to the node's data path (``answer``, :class:`clm_ros.track_answers.AnswerPath`)
+in chunks of at most :data:`CHUNK`.
 """
 
 from __future__ import annotations
 
 import traceback
+from collections.abc import Callable
 from typing import Any
 
 from clm_msgs.msg import WheelLoads
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.lifecycle import Node as LifecycleNode
+from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 
-from clm_core.online import OnlineTrackModel, Reason, Rejected
+from clm_core.online import OnlineStats, Reason
 from clm_ros import qos
-from clm_ros.diagnostics import Counters, bounded
+from clm_ros.diagnostics import Counters
+from clm_ros.node_log import NodeLog
 from clm_ros.node_main import StopSignals
 from clm_ros.sources import GidSubscription, Sources, gid_text
 
-__all__ = ["CHUNK", "TrackInput"]
+__all__ = ["CHUNK", "WheelLoadInput"]
 
 #: Frames processed in one go at most; between chunks the answers go out and a stop request is honoured.
 CHUNK = 500
 
 
-class TrackInput(LifecycleNode):
-    """The wheel-load input of the track node (see the module docstring); :meth:`_answer` is the node's."""
+class WheelLoadInput:
+    """The wheel-load input of the track node (see the module docstring).
 
-    _stop: StopSignals
-    counters: Counters
-    model: OnlineTrackModel | None
-    _logged: set[str]
-    _sub: GidSubscription | None
-    _sources: Sources
-    _accepting: bool
-    _reliability: str
-    _requested_reliability: Any
-    _recreate: bool
-    _peers: tuple[int, int]
-    _matched_publishers: int
-    _new_stream: bool
-    _peer_lost: bool
-    _pub_w: Any
-    _pub_markers: Any
-    _markers_watched: bool
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The track node (its subscription, graph queries and executor).
+    counters : Counters
+        The node's counters (received, not accepted, lost, internal errors).
+    stats : OnlineStats
+        The model's counters (carried from model to model for the node's life).
+    log : NodeLog
+        The node's log.
+    stop : StopSignals
+        Stop requests, honoured between chunks of a backlog.
+    answer : callable
+        The data path: answers a chunk of serialized messages, in order.
+    reject : callable
+        Refuses a message (reason, text): counted by the model, logged once per cause (no model: ignored).
+    """
 
-    def _answer(self, raws: list[bytes]) -> None:
-        """Decode, integrate and answer one chunk of messages, in order (the track node's data path)."""
-        raise NotImplementedError
+    def __init__(self, node: Node, counters: Counters, stats: OnlineStats, log: NodeLog, stop: StopSignals,
+                 answer: Callable[[list[bytes]], None], reject: Callable[[Reason, str], None],
+                 doorbell: bool = True) -> None:
+        self.node, self.counters, self.stats, self.log, self._stop = node, counters, stats, log, stop
+        self._answer, self._reject = answer, reject
+        self._doorbell = doorbell  # False: the process's loop waits on the arrival fd (arrival_fd, serve_arrivals)
+        self.sub: GidSubscription | None = None
+        self.sources = Sources()  # which publisher of wheel_loads is the stream (clm_ros.sources)
+        self.accepting = False
+        self.reliability = ""
+        self._requested_reliability: Any = None
+        self._recreate = False
+        self.peers = (-1, -1)  # (wheel-load publishers, answer readers); -1: not followed
+        self.matched_publishers = 0  # wheel-load writers the subscription has matched (its own side of discovery)
+        self.new_stream = False  # every source left, or the source left the graph: the data path restarts the state
+        self._peer_lost = False
 
-    def _log(self, level: str, text: str, once: str | None = None) -> None:
-        """Log a bounded line (``once``: a key logged only the first time)."""
-        if once is not None:
-            if once in self._logged:
-                return
-            self._logged.add(once)
-        logger, line = self.get_logger(), bounded(text)  # type: ignore[no-untyped-call]  # rclpy: unannotated
-        # one call site per severity: rclpy's logger refuses another severity from the same line
-        if level == "error":
-            logger.error(line)
-        elif level == "warning":
-            logger.warning(line)
-        else:
-            logger.info(line)
+    def arrival_fd(self) -> int:
+        """The subscription's arrival fd when the process's loop waits on it (``doorbell`` false), else -1."""
+        sub = self.sub
+        return sub.fileno() if sub is not None and not self._doorbell else -1
+
+    def serve_arrivals(self) -> None:
+        """The arrival fd is readable: take and answer what has arrived."""
+        sub = self.sub
+        if sub is not None:
+            sub.serve_arrivals()
+
+    def values(self) -> dict[str, Any]:
+        """The input's ``/diagnostics`` key-values."""
+        return {
+            "wheel_load_publishers": max(self.peers[0], 0),
+            "wheel_load_publishers_matched": self.matched_publishers,
+            **self.sources.values(),
+            "answer_readers": max(self.peers[1], 0),
+            "wheel_loads_reliability": self.reliability or "none",
+        }
 
     # ------------------------------------------------------------------ subscription (QoS, peers)
 
@@ -83,21 +104,22 @@ class TrackInput(LifecycleNode):
         self._requested_reliability = profile.reliability
         return SetParametersResult(successful=True)
 
-    def _subscribe(self) -> None:
+    def subscribe(self) -> None:
         """Subscribe to wheel_loads (raw bytes) with the QoS after the user's overrides (module clm_ros.qos)."""
         opts = qos.overrides(callback=self._capture_qos)
         events = SubscriptionEventCallbacks(incompatible_qos=self._on_incompatible_qos, message_lost=self._on_lost)
-        sub = self.create_subscription(WheelLoads, "wheel_loads", lambda _raw: None, qos.wheel_loads_qos(),
-                                       qos_overriding_options=opts, event_callbacks=events, raw=True)
-        self._sub = GidSubscription(self, sub, self._on_wheel_loads)  # taken with the publisher's GID
-        pubs = self.get_publishers_info_by_topic(self._sub.topic_name)
-        self._reliability = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
+        sub = self.node.create_subscription(WheelLoads, "wheel_loads", lambda _raw: None, qos.wheel_loads_qos(),
+                                            qos_overriding_options=opts, event_callbacks=events, raw=True)
+        # taken with the publisher's GID
+        self.sub = GidSubscription(self.node, sub, self._on_wheel_loads, doorbell=self._doorbell)
+        pubs = self.node.get_publishers_info_by_topic(self.sub.topic_name)
+        self.reliability = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
         self._recreate = False
 
-    def _unsubscribe(self) -> None:
+    def unsubscribe(self) -> None:
         """Stop accepting; take and count what is queued (not accepted: no answer owed); destroy."""
-        self._accepting = False
-        sub, self._sub = self._sub, None
+        self.accepting = False
+        sub, self.sub = self.sub, None
         if sub is None:
             return
         n = 0
@@ -105,83 +127,81 @@ class TrackInput(LifecycleNode):
             while sub.take() is not None:
                 n += 1
         except Exception as exc:  # the subscription goes anyway
-            self._log("warning", f"discarding queued wheel loads: {exc}")
+            self.log.warning(f"discarding queued wheel loads: {exc}")
         self.counters.received += n
         self.counters.not_accepted += n
         if n:
-            self._log("info", f"{n} queued wheel-load message(s) not accepted (node no longer active)")
+            self.log.info(f"{n} queued wheel-load message(s) not accepted (node no longer active)")
         sub.destroy()
 
     def _on_incompatible_qos(self, event: Any) -> None:
-        self._log("warning", f"wheel_loads: a publisher offers an incompatible QoS (policy "
-                  f"{event.last_policy_kind}); subscription reliability {self._reliability}", once="incompatible")
+        self.log.warning(f"wheel_loads: a publisher offers an incompatible QoS (policy {event.last_policy_kind}); "
+                         f"subscription reliability {self.reliability}", key="incompatible")
         self._recreate = True
 
     def _on_lost(self, event: Any) -> None:
         self.counters.lost += int(event.total_count_change)
 
-    def _housekeeping(self) -> None:
-        """Every 0.25 s on the executor thread: follow the publishers (QoS resolution, peers gone and back)."""
-        markers = self._pub_markers
-        self._markers_watched = markers is not None and markers.get_subscription_count() > 0
-        sub = self._sub
+    def housekeeping(self, readers: int) -> None:
+        """Every 0.25 s on the executor thread: follow the publishers (QoS resolution, peers gone and back);
+        ``readers``: the answer readers now (the node's ``wheel_rail_response`` subscriptions)."""
+        sub = self.sub
         if sub is None:
-            self._peers = (-1, -1)
-            self._matched_publishers = 0
+            self.peers = (-1, -1)
+            self.matched_publishers = 0
             return
-        pubs = self.get_publishers_info_by_topic(sub.topic_name)
-        self._matched_publishers = sub.get_publisher_count()
-        if self._accepting:
+        pubs = self.node.get_publishers_info_by_topic(sub.topic_name)
+        self.matched_publishers = sub.get_publisher_count()
+        if self.accepting:
             self._on_wheel_loads()  # (what arrived before the node had an executor to wake)
-        if self._sources.graph(p.endpoint_gid for p in pubs):  # the stream's source left: the next one takes over
-            self._new_stream = True
-            self._log("info", "wheel_loads: the stream's source left the graph; the next publisher heard takes over")
-        readers = self._pub_w.get_subscription_count() if self._pub_w is not None else 0
+        if self.sources.graph(p.endpoint_gid for p in pubs):  # the stream's source left: the next one takes over
+            self.new_stream = True
+            self.log.info("wheel_loads: the stream's source left the graph; the next publisher heard takes over")
         peers = (len(pubs), readers)
-        if peers != self._peers:
-            self._peers_changed(self._peers, peers)
-            self._peers = peers
+        if peers != self.peers:
+            self._peers_changed(self.peers, peers)
+            self.peers = peers
         wanted = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
-        if self._recreate or wanted != self._reliability:
+        if self._recreate or wanted != self.reliability:
             if self._requested_reliability != ReliabilityPolicy.BEST_AVAILABLE:
                 self._recreate = False
                 return
-            old = self._reliability
+            old = self.reliability
             self._replace_subscription()
-            self._log("info", f"wheel_loads: subscription re-created, reliability {old} -> {self._reliability}")
+            self.log.info(f"wheel_loads: subscription re-created, reliability {old} -> {self.reliability}")
 
     def _peers_changed(self, old: tuple[int, int], new: tuple[int, int]) -> None:
         """Log who came and went (a peer that dies is seen when its middleware lease runs out)."""
         if old[0] > 0 and new[0] == 0:
-            self._new_stream = self._peer_lost = True  # every source left: the next message starts a new stream
-            self._log("warning", "wheel_loads: no publisher any more (peer gone); waiting for it to return")
+            self.new_stream = self._peer_lost = True  # every source left: the next message starts a new stream
+            self.log.warning("wheel_loads: no publisher any more (peer gone); waiting for it to return")
         elif self._peer_lost and old[0] == 0 and new[0] > 0:
             self._peer_lost = False
-            self._log("info", f"wheel_loads: {new[0]} publisher(s) back")
+            self.log.info(f"wheel_loads: {new[0]} publisher(s) back")
         elif old[0] >= 0 and new[0] != old[0]:
-            self._log("info", f"wheel_loads: {old[0]} -> {new[0]} publisher(s)")
+            self.log.info(f"wheel_loads: {old[0]} -> {new[0]} publisher(s)")
         if old[1] > 0 and new[1] == 0:
-            self._log("warning", "wheel_rail_response: no reader any more (peer gone)")
+            self.log.warning("wheel_rail_response: no reader any more (peer gone)")
         elif old[1] >= 0 and new[1] != old[1]:
-            self._log("info", f"wheel_rail_response: {old[1]} -> {new[1]} reader(s)")
+            self.log.info(f"wheel_rail_response: {old[1]} -> {new[1]} reader(s)")
 
     def _replace_subscription(self) -> None:
         """A new subscription (QoS resolved anew); what the old one holds is answered first."""
-        old = self._sub
+        old = self.sub
         if old is None:
             return
         self._drain(old, [])
-        self._subscribe()
+        self.subscribe()
         self._drain(old, [])
         old.destroy()
 
     def _on_wheel_loads(self) -> None:
         """Executor callback (messages have arrived): everything waiting, answered in order."""
         try:
-            sub = self._sub
+            sub = self.sub
             if sub is None:
                 return
-            if not self._accepting:
+            if not self.accepting:
                 while sub.take() is not None:
                     self.counters.received += 1
                     self.counters.not_accepted += 1
@@ -190,12 +210,12 @@ class TrackInput(LifecycleNode):
         except Exception as exc:  # never let one message end the node
             self.counters.internal_errors += 1
             tb = traceback.format_exc(limit=3).strip().splitlines()
-            self._log("error", f"internal error on a wheel-load message (counted): {exc!r}; "
-                      f"{' | '.join(tb[-4:])}", once="internal_error")
+            self.log.error(f"internal error on a wheel-load message (counted): {exc!r}; {' | '.join(tb[-4:])}",
+                           key="internal_error")
 
     def _drain(self, sub: Any, raws: list[bytes]) -> None:
         """Take everything waiting in ``sub`` after ``raws`` and answer it, in chunks of at most CHUNK."""
-        take, admit = sub.take, self._sources.admit
+        take, admit = sub.take, self.sources.admit
         while True:
             got = take()
             if got is None:
@@ -207,7 +227,7 @@ class TrackInput(LifecycleNode):
             if len(raws) >= CHUNK:
                 self._answer(raws)
                 raws = []
-                if self._stop.requested() or not self._accepting:
+                if self._stop.requested() or not self.accepting:
                     return
         if raws:
             self._answer(raws)
@@ -215,13 +235,7 @@ class TrackInput(LifecycleNode):
     def _second_source(self, gid: bytes) -> None:
         """A message of a publisher that is not the stream's source: refused (``second_source``), counted."""
         self.counters.received += 1
-        src = self._sources.source
-        if self.model is not None:
-            self._reject(self.model.reject(Reason.SECOND_SOURCE, (
-                f"publisher {gid_text(gid)} is a second source on wheel_loads (the stream's source is "
-                f"{gid_text(src) if src else 'none'}): its messages are refused until the source leaves")))
-
-    def _reject(self, exc: Rejected) -> None:
-        cause = exc.reason.value
-        self._log("warning", f"wheel loads rejected ({cause}; logged once per cause, counted in /diagnostics): "
-                  f"{exc}", once=cause)
+        src = self.sources.source
+        self._reject(Reason.SECOND_SOURCE, (
+            f"publisher {gid_text(gid)} is a second source on wheel_loads (the stream's source is "
+            f"{gid_text(src) if src else 'none'}): its messages are refused until the source leaves"))

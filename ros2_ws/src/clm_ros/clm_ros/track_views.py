@@ -31,7 +31,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from clm_core.errors import ParameterError
 from clm_core.io.messages import encode_sleeper_response
-from clm_core.settings import MONITORED_POSITIONS, MONITORED_SLEEPERS, number_list
+from clm_core.settings import number_list
+from clm_ros.parameters import MONITORED_POSITIONS, MONITORED_SLEEPERS
 
 #: Drawing scale of displacements in the markers (1 mm -> 1 m).
 EXAGGERATION = 1000.0

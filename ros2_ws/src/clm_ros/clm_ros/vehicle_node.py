@@ -78,14 +78,13 @@ from clm_core.io.errors import MessageError
 from clm_core.io.messages import decode_wheel_rail_response, encode_wheel_loads
 from clm_core.io.timebase import NS
 from clm_core.params import load_model, load_params_file
-from clm_core.settings import setting
 from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
 from clm_ros.bag_tools import take_raw
 from clm_ros.diagnostics import publish_status
 from clm_ros.latched import LATCHED_QOS, TRACK_STATUS, VEHICLE_STATUS, LatchedStatus
 from clm_ros.node_main import freeze_heap, run_node
-from clm_ros.parameters import declare_settings
+from clm_ros.parameters import declare_settings, lookup
 from clm_ros.readiness import START_AT, START_SIGNAL, all_matched, owned
 from clm_ros.realtime import NOT_APPLIED, Scheduling
 from clm_ros.vehicle_counts import Counts
@@ -228,7 +227,7 @@ class VehicleNode(LifecycleNode):
 
     def _build(self) -> None:
         for name in ("trains", "headway", "train_pause", "track_node", "answer_timeout", "exit_when_done"):
-            setting(name).check(self.p(name))
+            lookup(name).check(self.p(name))
         g = self.p
         params = load_params_file(g("params_file")) if g("params_file") else load_model(g("track"), g("soil"),
                                                                                           g("model"))

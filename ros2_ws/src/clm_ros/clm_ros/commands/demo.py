@@ -1,6 +1,6 @@
 """``clm demo``: the end-to-end ROS demo (vehicle node + track node over DDS, bag, plots).
 
-Its options and their defaults are the run settings of :mod:`clm_core.settings`
+Its options and their defaults are the run settings of :mod:`clm_core.settings` and :mod:`clm_ros.parameters`
 (the same as the vehicle node's and ``clm simulate --vehicle``'s).
 """
 
@@ -10,12 +10,12 @@ import argparse
 from typing import Any
 
 from clm_core.commands import add_command, add_overwrite
-from clm_ros.run_settings import NAMES
+from clm_ros.run_settings import RUN_SETTINGS
 
 
 def register(sub: Any) -> None:
     """Add the ``demo`` sub-command."""
-    p = add_command(sub, "demo", run, settings=NAMES)
+    p = add_command(sub, "demo", run, settings=RUN_SETTINGS)
     p.add_argument("--out", default="results/demo", help="output directory (default results/demo)")
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
     p.add_argument("--view", nargs="?", type=int, const=8765, default=None, metavar="PORT",

@@ -1,6 +1,6 @@
 """``clm fleet``: N vehicle + track node pairs on one ROS graph, each in its namespace, checked and summarised.
 
-Its run options and their defaults are the run settings of :mod:`clm_core.settings`
+Its run options and their defaults are the run settings of :mod:`clm_core.settings` and :mod:`clm_ros.parameters`
 (as ``clm demo``'s); ``--trains`` and ``--first-index`` are the fleet's
 (docs/fleet.md: pairs on several hosts).
 """
@@ -12,12 +12,13 @@ import sys
 from typing import Any
 
 from clm_core.commands import add_command, add_overwrite
-from clm_ros.run_settings import NAMES
+from clm_ros.parameters import FLEET_FIRST_INDEX, FLEET_TRAINS
+from clm_ros.run_settings import RUN_SETTINGS
 
 
 def register(sub: Any) -> None:
     """Add the ``fleet`` sub-command."""
-    p = add_command(sub, "fleet", run, settings=("fleet_trains", "fleet_first_index", *NAMES))
+    p = add_command(sub, "fleet", run, settings=(FLEET_TRAINS, FLEET_FIRST_INDEX, *RUN_SETTINGS))
     p.add_argument("--out", default="results/fleet", help="output directory (default results/fleet)")
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
     p.add_argument("--no-record", dest="record", action="store_false",

@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from clm_core.commands import add_command, add_setting
+from clm_ros.parameters import DOMAIN_ID
 
 #: The default --rate [Hz] (clm_ros.view.DEFAULT_RATE; repeated here so that `clm --help` imports no rclpy).
 DEFAULT_RATE = 100.0
@@ -14,7 +15,7 @@ DEFAULT_RATE = 100.0
 def register(sub: Any) -> None:
     """Add the ``view`` sub-command."""
     p = add_command(sub, "view", run)
-    add_setting(p, "domain_id")
+    add_setting(p, DOMAIN_ID)
     p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765, Foxglove's; 0: any free)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address the server listens on (default 127.0.0.1: this machine only)")
