@@ -47,18 +47,6 @@ STALE = DiagnosticStatus.STALE
 #: A lag larger than this [s] (either sign) means the stamps are not on the node's clock.
 CLOCK_MISMATCH_S = 86400.0
 
-#: Longest log line [characters] (issue 12.8): longer texts are cut with a note of what was left out.
-LOG_LINE_LIMIT = 400
-
-
-def bounded(text: str, limit: int = LOG_LINE_LIMIT) -> str:
-    """``text`` cut to at most ``limit`` characters (``... (N more characters)`` at the end when cut)."""
-    if len(text) <= limit:
-        return text
-    note = f" ... ({len(text) - limit} more characters)"
-    return text[: max(limit - len(note), 0)] + note
-
-
 @dataclass
 class Counters:
     """What the node did with the wheel-load messages; every field only grows.

@@ -90,7 +90,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import get_default_context
 
 from clm_core.errors import ClmError
-from clm_ros.diagnostics import bounded
+from clm_ros.node_log import bounded
 from clm_ros.realtime import apply_fifo
 from clm_ros.shm import clean_stale_ports, domain_of_environment
 

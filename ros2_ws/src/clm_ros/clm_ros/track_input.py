@@ -27,7 +27,8 @@ from rclpy.qos import ReliabilityPolicy
 
 from clm_core.online import OnlineTrackModel, Reason, Rejected
 from clm_ros import qos
-from clm_ros.diagnostics import Counters, bounded
+from clm_ros.diagnostics import Counters
+from clm_ros.node_log import bounded
 from clm_ros.node_main import StopSignals
 from clm_ros.sources import GidSubscription, Sources, gid_text
 

@@ -84,12 +84,12 @@ from clm_ros.diagnostics import (
     Counters,
     DiagnosticsThread,
     LagMonitor,
-    bounded,
     diagnostic_array,
     lag_level,
     lag_values,
 )
 from clm_ros.latched import TRACK_STATUS, follow, matched_readers
+from clm_ros.node_log import bounded
 from clm_ros.node_main import StopSignals, freeze_heap, run_node
 from clm_ros.parameters import declare_model_parameters, declare_settings
 from clm_ros.realtime import NOT_APPLIED, Scheduling
