@@ -105,11 +105,6 @@ def test_burst_of_goals_and_service_calls_all_answered(ros_python, client_factor
     assert v["goals_accepted"] == str(2 * BURST) and v["goals_rejected"] == "0" and v["state"] == "idle"
 
 
-@pytest.mark.skip(reason=(
-    'quarantined (issue 26.1): failed in the full ROS suite on 2026-12-03 (no goal response within 60 s '
-    'behind a long fit) though it passed alone on its branch; the 50-goal / 50-call burst test beside it '
-    'runs'
-))
 def test_burst_beyond_the_queue_is_refused_and_counted(ros_python, client_factory) -> None:  # type: ignore[no-untyped-def]
     _start_calibration_node(ros_python, "-p", "max_queued:=2")
     c = client_factory()

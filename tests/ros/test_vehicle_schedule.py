@@ -92,6 +92,20 @@ def test_silence_counted_from_the_send_not_the_due_time() -> None:
     assert w.silent and not w.silence_began(t + 700 * MS)  # once
 
 
+def test_silence_counted_from_the_vehicle_s_resume() -> None:
+    """The vehicle stopped with messages outstanding (their answers wait, untaken, in its own middleware); on resuming
+    it sends its late messages: silence counts from the resume, not from the messages sent before the stop."""
+    w = AnswerWatch(timeout_ns=500 * MS)
+    for k in range(5):
+        w.sent(k, k, k * MS, k * MS)  # sent on time, then the process stops at 5 ms
+    t = 3 * NS  # resumed
+    w.sent(5, 5, 5 * MS, t)  # late by ~3 s: the vehicle stood still
+    assert not w.silence_began(t + 1 * MS)  # before: 3 s of 'silence' blamed on the track node at once
+    w.sent(6, 6, 6 * MS, t + 2 * MS)
+    assert not w.silence_began(t + 400 * MS)
+    assert w.silence_began(t + 600 * MS)  # no answer for the timeout after the resume: reported
+
+
 def test_silence_ends_with_an_answer_and_counts_again_from_there() -> None:
     w = AnswerWatch(timeout_ns=100 * MS)
     w.sent(1, 0, 0, 0)
@@ -199,10 +213,12 @@ def test_counts_lags_through_the_one_helper_and_sums() -> None:
 
 
 def test_module_examples_run() -> None:
-    """The examples in the docstrings of clm_ros.vehicle_schedule run as doctests."""
+    """The examples in the docstrings of clm_ros.vehicle_schedule and clm_ros.vehicle_counts run as doctests."""
     import doctest
 
-    import clm_ros.vehicle_schedule as mod
+    import clm_ros.vehicle_counts as counts
+    import clm_ros.vehicle_schedule as schedule
 
-    failed, attempted = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
-    assert attempted >= 10 and failed == 0
+    for mod, least in ((schedule, 10), (counts, 5)):
+        failed, attempted = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
+        assert attempted >= least and failed == 0, mod.__name__

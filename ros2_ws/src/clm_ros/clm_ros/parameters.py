@@ -55,6 +55,15 @@ NODE_SETTINGS: dict[str, Setting[Any]] = {
                 minimum=0.0, maximum=3600.0, read_only=True),
         Setting("push_timeout", float, 10.0, "s", "how long a push waits for the target node's parameter "
                 "service and its answer", minimum=0.1, maximum=600.0),
+        # --- the calibration node's (were calibration_node.py DEFAULT_METHOD, MAX_QUEUED and calibration_goal.py
+        # ALLOWED_ROOTS; the methods are clm_core.calibration.options.METHODS, not imported here to keep the
+        # calibration package out of every node's start: tests/ros/test_calibration_node.py checks they agree)
+        Setting("default_method", str, "impact", "-", "method used when a goal leaves 'method' empty",
+                choices=("impact", "receptance", "passby")),
+        Setting("max_queued", int, 4, "-", "goals that may wait while one runs (0: reject while busy)", minimum=0,
+                maximum=1000),
+        Setting("allowed_roots", str, ".", "-", "directories (comma-separated) under which a goal's bag, "
+                "parameter file and channel map may lie ('.': the node's working directory)", read_only=True),
     )
 }
 

@@ -3,7 +3,8 @@
 Plain Python (no ROS): :class:`Counts` (the counters and answer lags of a
 train), :meth:`Counts.report` (the log line at a train's end) and
 :func:`diagnostics_values` (the key-value pairs of the node's
-``/diagnostics``). Lag figures through :func:`clm_core.io.timebase.lag_figures`,
+``/diagnostics``), :class:`VehicleStatus` (its state, level and latched
+status). Lag figures through :func:`clm_core.io.timebase.lag_figures`,
 the project's one lag-statistics helper.
 """
 
@@ -15,6 +16,12 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from clm_core.io.timebase import LagFigures, lag_figures
+
+#: ``diagnostic_msgs/DiagnosticStatus`` levels (a ``byte`` field: one byte; a Python int there is not converted).
+#: Typed ``Any`` as rclpy's own constants are, for the diagnostics helpers that annotate the level ``int``.
+OK: Any = b"\x00"
+WARN: Any = b"\x01"
+ERROR: Any = b"\x02"
 
 
 @dataclass
@@ -112,3 +119,59 @@ def diagnostics_values(train: Counts, life: Counts, recent_lags_ns: Iterable[int
     if final:
         values.update({f"train.{k}": f"{v:.6f}" for k, v in c.lags().named().items()})
     return values
+
+
+class VehicleStatus:
+    """The vehicle node's state as ``/diagnostics`` and its latched ``vehicle_status`` say it (levels :data:`OK`,
+    :data:`WARN`, :data:`ERROR`).
+
+    Examples
+    --------
+    >>> s = VehicleStatus()
+    >>> s.set("train 1: running", OK)
+    >>> level, message, _ = s.diagnostics(Counts(published=200, stale=5), Counts(), [], 0, True, {})
+    >>> level == WARN, message
+    (True, 'train 1: running (5 of the last 200 answers too late for the closed loop)')
+    >>> s.failed("stopped: model diverged"); s.latched({"train": 1})[0] == ERROR
+    True
+    """
+
+    def __init__(self) -> None:
+        self.text, self.level, self.phase, self.model_error = "unconfigured", OK, "idle", ""
+        self.train_times = (0, 0)  # system clock [ns] of the current / last train's start and end
+        self._final: dict[str, Any] = {}  # the last finished train's figures, as reported at its end
+        self._mark = (0, 0)  # (published, too late) of the train at the last diagnostics
+
+    def set(self, text: str, level: Any) -> None:
+        """The state's text and level."""
+        self.text, self.level = text, level
+
+    def failed(self, text: str) -> None:
+        """The train failed (the schedule ends): ERROR with ``text``."""
+        self.model_error, self.phase = text, "stopped"
+        self.set(text, ERROR)
+
+    def latched(self, values: dict[str, Any]) -> tuple[Any, str, dict[str, Any]]:
+        """(level, text, values) of the latched status: ``values`` (train number, trains done) with the phase, the
+        state, the current train's start and end and the last finished train's figures."""
+        return (ERROR if self.model_error else self.level, self.text,
+                {"phase": self.phase, "state": self.text, **values, "train.start_ns": self.train_times[0],
+                 "train.end_ns": self.train_times[1], **self._final})
+
+    def diagnostics(self, train: Counts, life: Counts, recent_lags_ns: Iterable[int], contact_lost_steps: int,
+                    closed_loop: bool, head: dict[str, Any], final: int = 0) -> tuple[Any, str, dict[str, Any]]:
+        """(level, message, values) of a ``/diagnostics`` status: ``head`` and :func:`diagnostics_values`; with
+        ``final`` (a train's number, at its end) also kept for the latched status. WARN in closed loop when more than
+        1 % of the messages published since the last diagnostics (100 at least) were answered too late."""
+        values = {**head, **diagnostics_values(train, life, recent_lags_ns, contact_lost_steps, bool(final))}
+        if final:
+            values["final_train"] = final
+            self._final = {k: v for k, v in values.items() if k.startswith("train.") or k in (
+                "final_train", "scheduling")}
+        level, message = (ERROR if self.model_error else self.level), self.text
+        published, stale = train.published - self._mark[0], train.stale - self._mark[1]
+        self._mark = (train.published, train.stale) if train.published >= self._mark[0] else (0, 0)
+        if level == OK and closed_loop and published >= 100 and stale > 0.01 * published:
+            level = WARN
+            message += f" ({stale} of the last {published} answers too late for the closed loop)"
+        return level, message, values

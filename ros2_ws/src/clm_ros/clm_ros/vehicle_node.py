@@ -1,30 +1,18 @@
 """Vehicle simulator node: a clm_core vehicle publishing its wheel loads in real time, train after train.
 
-A lifecycle node (``rclpy.lifecycle``, as ros2/demos ``lifecycle_py``) a user can leave running:
-
-- configure: build the vehicle and its timetable (:func:`clm_ros.vehicle_schedule.build_plan`: the compiled step
-  loaded or compiled now, never in a train); an invalid set is refused with its reason (the node stays unconfigured);
-- activate: run ``trains`` trains (0: until deactivated), ``train_pause`` apart or on a ``headway`` from start to
-  start (:class:`clm_ros.vehicle_schedule.TrainSchedule`). Each waits for its own track node, active and subscribed,
-  plus ``wait_for_subscribers`` readers (with ``start_signal``, for the supervisor's start time;
-  :class:`clm_ros.vehicle_link.TrackLink`); only then its clock starts. It publishes ``clm_msgs/WheelLoads`` on
-  ``wheel_loads`` at ``rate`` Hz for ``duration`` simulated seconds, each stamped with its due time (ROS time; with
-  ``publish_clock`` simulation time, also on ``/clock``), then waits up to ``ack_timeout`` for the answers;
-- deactivate stops the train at once (its counts are kept); cleanup drops the run; shutdown stops everything.
-
-Closed loop (``closed_loop``): the answers on ``wheel_rail_response`` correct the vehicle's track predictor
-(:class:`clm_ros.vehicle_schedule.TrainRun`); one older than ``max_feedback_delay`` is not used, and counted. Counts
-per train and for the node's life (:mod:`clm_ros.vehicle_counts`) go to ``/diagnostics`` every
-``diagnostics_period`` and at each train's end, and are latched on ``vehicle_status`` (:mod:`clm_ros.latched`).
-
-Faults: a track node that stops answering is reported (logged once, /diagnostics WARN) when the oldest message sent
-since its last answer has waited ``answer_timeout`` (:class:`clm_ros.vehicle_schedule.AnswerWatch`): silence counts
-only while messages are outstanding, so a vehicle that itself stood still never blames the track node. The train
-goes on on its predictor, and uses the answers again when they return. Publishing never blocks (reliable,
-keep-last 5000). SIGINT or SIGTERM: exit 0 (:mod:`clm_ros.node_main`); ``exit_when_done``: exit 0 after the last
-train. Everything runs in the thread that spins the node (:meth:`VehicleNode.serve_due`, called by
-:func:`clm_ros.node_main.run_node` between two turns of the executor). The node is also the reference client for
-external simulators: wait for the track node, publish one ``WheelLoads`` per sample, read ``WheelRailResponse``.
+A lifecycle node (as ros2/demos ``lifecycle_py``); docs/ros-nodes.md, "Vehicle simulator node", says it all. Configure
+builds the vehicle and its timetable (:func:`clm_ros.vehicle_schedule.build_plan`; an invalid set is refused with its
+reason); activate runs ``trains`` trains (0: until deactivated) on a ``headway`` or ``train_pause`` apart
+(:class:`clm_ros.vehicle_schedule.TrainSchedule`), each once its own track node is active and subscribed
+(:class:`clm_ros.vehicle_link.TrackLink`), publishing ``clm_msgs/WheelLoads`` on ``wheel_loads`` at ``rate`` Hz for
+``duration`` s stamped with their due times (``publish_clock``: simulation time, also on ``/clock``), then waiting
+``ack_timeout`` for the answers; deactivate stops the train (its counts kept). Closed loop: the answers on
+``wheel_rail_response`` correct the vehicle's track predictor (:class:`clm_ros.vehicle_schedule.TrainRun`; one older
+than ``max_feedback_delay`` is counted, not used). Counts (:mod:`clm_ros.vehicle_counts`) go to ``/diagnostics`` and
+the latched ``vehicle_status``. A track node that stops answering is reported when the oldest message sent since its
+last answer has waited ``answer_timeout`` (:class:`clm_ros.vehicle_schedule.AnswerWatch`: a vehicle that itself stood
+still never blames it); the train goes on on its predictor. SIGINT/SIGTERM: exit 0; ``exit_when_done``: exit 0 after
+the last train. Everything runs in the spinning thread (:meth:`VehicleNode.serve_due`, between two executor turns).
 
 Run: ``python -m clm_ros.vehicle_node --ros-args -p speed:=60.0`` (``ros2 run clm_ros vehicle_node``).
 """
@@ -46,14 +34,14 @@ from rosgraph_msgs.msg import Clock
 
 from clm_core.errors import ClmError
 from clm_core.io.timebase import NS
-from clm_core.settings import setting
 from clm_ros.diagnostics import publish_status
 from clm_ros.latched import VEHICLE_STATUS, LatchedStatus
+from clm_ros.node_log import NodeLog
 from clm_ros.node_main import freeze_heap, run_node
 from clm_ros.parameters import declare_settings
 from clm_ros.readiness import START_SIGNAL
 from clm_ros.realtime import NOT_APPLIED, Scheduling
-from clm_ros.vehicle_counts import Counts, diagnostics_values
+from clm_ros.vehicle_counts import Counts, VehicleStatus
 from clm_ros.vehicle_link import DATA_QOS, HANDSHAKE_TIMEOUT_NS, TrackLink
 from clm_ros.vehicle_schedule import FORGET_AFTER, AnswerWatch, TrainRun, TrainSchedule, VehiclePlan, build_plan
 
@@ -92,16 +80,14 @@ class VehicleNode(LifecycleNode):
         self.schedule = TrainSchedule(0, 0, 0)
         self.watch = AnswerWatch(0)
         self.link: TrackLink | None = None
-        self._pub: Any = None
+        self._pub: Any = None  # wheel_loads, and /clock with publish_clock
         self._clock_pub: Any = None
         self.finished = Counts()  # the trains before the current one
-        self.phase, self.state_text, self.level, self._model_error = "idle", "unconfigured", DiagnosticStatus.OK, ""
-        self._diag_mark = (0, 0)  # (published, too late) of the train at the last diagnostics
-        self._final_values: dict[str, Any] = {}  # the last finished train's figures, as reported at its end
-        self._train_times = (0, 0)  # system clock [ns] of the current / last train's start and end
+        self.status = VehicleStatus()  # phase, state, level; the /diagnostics and latched status builder
         self._k = self._deadline = self._wait_since = self._sim_ns = 0
         self._next: tuple[int, int, bytes] = (0, 0, b"")  # the next (or last) message: stamp, due time, bytes
         self._warned, self.closed_loop = False, False
+        self.log = NodeLog(self)  # the nodes' one logging helper (bounded lines, once-only and throttled)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._latched = LatchedStatus(self, VEHICLE_STATUS, "vehicle simulator")
         self._diag_timer = self.create_timer(float(self.p("diagnostics_period")), self._publish_diagnostics)
@@ -115,15 +101,11 @@ class VehicleNode(LifecycleNode):
         """A parameter's value."""
         return self.get_parameter(name).value
 
-    # ------------------------------------------------------------------ lifecycle
-
     def on_configure(self, state: State) -> TransitionCallbackReturn:
         try:
-            for name in ("trains", "headway", "train_pause", "track_node", "answer_timeout", "exit_when_done"):
-                setting(name).check(self.p(name))
-            self.plan = plan = build_plan({name: self.p(name) for name in (*RUN_SETTINGS, "max_feedback_delay")})
+            self.plan = plan = build_plan({name: self.p(name) for name in (*RUN_SETTINGS, *NODE_SETTINGS)})
         except (ClmError, ValueError, OSError) as exc:
-            self.get_logger().error(f"configure refused: {exc}")
+            self.log.error(f"configure refused: {exc}")
             self.plan = None
             return TransitionCallbackReturn.FAILURE
         self.schedule = TrainSchedule(int(self.p("trains")), int(float(self.p("headway")) * NS),
@@ -137,7 +119,7 @@ class VehicleNode(LifecycleNode):
                               bool(self.p("start_signal")))
         self._set_state("configured", DiagnosticStatus.OK)
         freeze_heap()  # the run's objects live until cleanup: no full collection of them during a train
-        self.get_logger().info(
+        self.log.info(
             f"configured: {self.p('vehicle')} ({plan.n_wheels} wheels) at {plan.speed:g} m/s, {self.p('duration'):g} "
             f"s per train at {self.p('rate'):g} Hz, {plan.substeps} steps of {plan.dt:g} s per message; trains: "
             f"{self.p('trains') or 'until deactivated'}")
@@ -160,100 +142,93 @@ class VehicleNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: State) -> TransitionCallbackReturn:
-        self._halt("finalized")
-        self._drop_entities()
-        return TransitionCallbackReturn.SUCCESS
+        return self._drop_entities("finalized")
 
     def on_error(self, state: State) -> TransitionCallbackReturn:
-        self._halt("unconfigured")
-        self._drop_entities()
-        return TransitionCallbackReturn.SUCCESS
+        return self._drop_entities("unconfigured")
 
-    def _drop_entities(self) -> None:
+    def _drop_entities(self, halt: str = "") -> TransitionCallbackReturn:
+        if halt:
+            self._halt(halt)
         for p in (self._pub, self._clock_pub):
             if p is not None:
                 self.destroy_lifecycle_publisher(p)
         if self.link is not None:
             self.link.destroy()
         self._pub = self._clock_pub = self.link = None
+        return TransitionCallbackReturn.SUCCESS
 
     def _halt(self, state: str) -> None:
         """Stop the schedule (the train that runs is reported as stopped)."""
-        if self.phase in ("run", "answers"):
+        if self.status.phase in ("run", "answers"):
             self._finish_train(stopped=True)
-        self.phase = "idle"
+        self.status.phase = "idle"
         self._set_state(state, DiagnosticStatus.OK)
         self._publish_diagnostics()
 
     def stop(self) -> None:
         """The process is ending (SIGINT, SIGTERM or ``exit_when_done``): stop the schedule."""
-        self._halt(self.state_text if self.phase == "done" else "stopped")
+        self._halt(self.status.text if self.status.phase == "done" else "stopped")
 
-    def _set_state(self, text: str, level: int) -> None:
-        self.state_text, self.level = text, level
+    def _set_state(self, text: str, level: Any) -> None:
+        self.status.set(text, level)
         self._latch()
 
     def _latch(self) -> None:
         """Publish the control-plane state (phase, train, its start and end, the last train's figures) latched."""
-        s = self.schedule
-        values = {"phase": self.phase, "state": self.state_text, "train": s.number, "trains_done": s.trains_done,
-                  "train.start_ns": self._train_times[0], "train.end_ns": self._train_times[1], **self._final_values}
-        self._latched.update(DiagnosticStatus.ERROR if self._model_error else self.level, self.state_text, values)
-
-    # ------------------------------------------------------------------ the timetable
+        self._latched.update(*self.status.latched({"train": self.schedule.number,
+                                                   "trains_done": self.schedule.trains_done}))
 
     def serve_due(self) -> float:
         """Do what is due now; return how long the executor may wait for other work until the next action [s]."""
         try:
             self._take_answers()
-            if self.phase == "run":
+            if self.status.phase == "run":
                 return self._serve_train()
-            if self.phase == "wait":
+            if self.status.phase == "wait":
                 return self._serve_wait()
-            if self.phase == "answers":
+            if self.status.phase == "answers":
                 if self.watch.outstanding and time.monotonic_ns() < self._deadline:
                     return 0.005
                 self._finish_train(stopped=False)
                 return 0.0
-            if self.phase == "pause":
+            if self.status.phase == "pause":
                 wait = self.schedule.next_start - time.monotonic_ns()
                 if wait > 0:
                     return wait / NS
                 self._begin_wait()
                 return 0.0
         except Exception as exc:  # a failed train ends the schedule; the node stays up and says why
-            self._model_error = str(exc)
-            self.phase = "stopped"
-            self._set_state(f"stopped: {exc}", DiagnosticStatus.ERROR)
-            self.get_logger().error(f"train {self.schedule.number} stopped: {exc}")
+            self.status.failed(f"stopped: {exc}")
+            self._latch()
+            self.log.error(f"train {self.schedule.number} stopped: {exc}")
             self._publish_diagnostics()
         return 0.1
 
     def _begin_wait(self) -> None:
         if self.schedule.complete():
-            self.phase = "done"
-            self._set_state(f"done: {self.schedule.trains} train(s)", self.level)
+            self.status.phase = "done"
+            self._set_state(f"done: {self.schedule.trains} train(s)", self.status.level)
             self._publish_diagnostics()
             if self.p("exit_when_done"):
                 self.exit_code = 0
             return
-        self.phase, self._wait_since, self._warned = "wait", time.monotonic_ns(), False
+        self.status.phase, self._wait_since, self._warned = "wait", time.monotonic_ns(), False
         self._set_state(f"train {self.schedule.number + 1}: waiting for {self.p('track_node') or 'a subscriber'}",
-                        self.level)
+                        self.status.level)
 
     def _serve_wait(self) -> float:
         assert self.link is not None
         start = self.link.start_due() if self.schedule.first_of_activation() else True
         if start is None:  # the start signal not given yet: say once that this train is ready
             text = f"train {self.schedule.number + 1}: ready, waiting for the start signal"
-            if self.state_text != text:
-                self.phase = "ready"
-                self._set_state(text, self.level)
-                self.phase = "wait"
+            if self.status.text != text:
+                self.status.phase = "ready"
+                self._set_state(text, self.status.level)
+                self.status.phase = "wait"
         if self.link.track_ready() and start:
             if self._warned:
-                self.get_logger().info(f"{self.p('track_node') or 'a subscriber'} is there: train "
-                                       f"{self.schedule.number + 1} starts")
+                self.log.info(f"{self.p('track_node') or 'a subscriber'} is there: train {self.schedule.number + 1}")
             self._start_train()
             return self._serve_train()
         timeout = float(self.p("discovery_timeout"))
@@ -262,26 +237,26 @@ class VehicleNode(LifecycleNode):
             who = self.p("track_node") or "a subscriber"
             self._set_state(f"train {self.schedule.number + 1}: waiting for {who} for more than {timeout:g} s",
                             DiagnosticStatus.WARN)
-            self.get_logger().error(
+            self.log.error(
                 f"no {who} (active, subscribed to {self._pub.topic_name}, publishing "
                 f"{self.link.answers.topic_name}) and {self.p('wait_for_subscribers')} matched reader(s) after "
                 f"{timeout:g} s" + (": giving up" if self.p("exit_when_done") else "; still waiting"))
             if self.p("exit_when_done"):
-                self.exit_code, self.phase = 3, "stopped"
+                self.exit_code, self.status.phase = 3, "stopped"
         return 0.01
 
     def _start_train(self) -> None:
         assert self.plan is not None
         now = time.monotonic_ns()
         number = self.schedule.begin(now)
-        self.finished = self.finished + self.train
+        self.finished = self.counts()[1]
         base = self._sim_ns if self._clock_pub is not None else self.get_clock().now().nanoseconds
         self.run = TrainRun(self.plan, base, now, str(self.p("frame_id")), self.closed_loop, self.watch)
-        self._train_times = (time.time_ns(), 0)
-        self.phase = "run"
+        self.status.train_times = (time.time_ns(), 0)
+        self.status.phase = "run"
         self._set_state(f"train {number}: running", DiagnosticStatus.OK)
         self._k, self._next = 0, self.run.message(0)
-        self.get_logger().info(f"train {number} starts: {self.plan.n_messages} messages")
+        self.log.info(f"train {number} starts: {self.plan.n_messages} messages")
 
     def _serve_train(self) -> float:
         now = time.monotonic_ns()
@@ -301,18 +276,17 @@ class VehicleNode(LifecycleNode):
             c.published += 1
         except Exception as exc:  # never dies on a publish (a vanished peer, a context going down)
             c.publish_failed += 1
-            if c.publish_failed == 1:
-                self.get_logger().warning(f"publish failed (counted, the train goes on): {exc}")
+            self.log.warning(f"publish failed (counted, the train goes on): {exc}", key="publish_failed")
         self._k += 1
         if (self._k & 63) == 0 and self.watch.silence_began(now):
             t = self.watch.timeout_ns / NS
-            self._set_state(self.state_text + f" (no answer for {t:g} s)", DiagnosticStatus.WARN)
-            self.get_logger().warning(
+            self._set_state(self.status.text + f" (no answer for {t:g} s)", DiagnosticStatus.WARN)
+            self.log.warning(
                 f"no answer from the track node for {t:g} s (it may have died): the train goes on on its predictor "
                 "alone, and uses the answers again when they return")
         if self._k >= plan.n_messages:
             run.end()
-            self.phase, self._deadline = "answers", now + int(float(self.p("ack_timeout")) * NS)
+            self.status.phase, self._deadline = "answers", now + int(float(self.p("ack_timeout")) * NS)
             return 0.0
         self._next = run.message(self._k)
         return max(self._next[1] - time.monotonic_ns(), 0) / NS
@@ -320,15 +294,15 @@ class VehicleNode(LifecycleNode):
     def _finish_train(self, stopped: bool) -> None:
         s = self.schedule
         c = self.run.end() if self.run is not None else Counts()
-        self.watch.clear()
-        self.get_logger().info(c.report(s.number, float(self.p("rate")), stopped))
-        self._train_times = (self._train_times[0], time.time_ns())
+        self.watch.clear()  # a later answer is unmatched
+        self.log.info(c.report(s.number, float(self.p("rate")), stopped))
+        self.status.train_times = (self.status.train_times[0], time.time_ns())
         if stopped:
             return
         s.finish(time.monotonic_ns())
         self._sim_ns = self._next[0] + int(round(float(self.p("train_pause")) * NS))
-        self.phase = "pause"
-        self._set_state(f"train {s.number} done", self.level)
+        self.status.phase = "pause"
+        self._set_state(f"train {s.number} done", self.status.level)
         self._publish_diagnostics(final=s.number)
         if s.complete():
             self._begin_wait()  # the schedule is complete: done
@@ -341,44 +315,26 @@ class VehicleNode(LifecycleNode):
             was_silent = self.watch.silent
             problem = self.run.answer(raw, received)
             if problem:
-                self.get_logger().warning(problem, once=True)
+                self.log.warning(problem, key="feedback_refused")
             if was_silent and not self.watch.silent:
-                self.get_logger().info("the track node answers again: its answers are used as feedback again")
-                if self.level == DiagnosticStatus.WARN:
-                    self._set_state(self.state_text.split(" (no answer")[0], DiagnosticStatus.OK)
-
-    # ------------------------------------------------------------------ diagnostics
-
-    @property
-    def train(self) -> Counts:
-        """The current (or last) train's counts."""
-        return self.run.counts if self.run is not None else Counts()
+                self.log.info("the track node answers again: its answers are used as feedback again")
+                if self.status.level == DiagnosticStatus.WARN:
+                    self._set_state(self.status.text.split(" (no answer")[0], DiagnosticStatus.OK)
 
     def counts(self) -> tuple[Counts, Counts]:
         """(current or last train, the node's life so far)."""
-        return self.train, self.finished + self.train
+        train = self.run.counts if self.run is not None else Counts()
+        return train, self.finished + train
 
     def _publish_diagnostics(self, final: int = 0) -> None:
-        c, life = self.counts()
-        lost = self.run.vehicle.contact_lost_steps if self.run is not None else 0
-        recent = self.run.recent_lags if self.run is not None else ()
-        values: dict[str, Any] = {"state": self.state_text, "trains_done": self.schedule.trains_done,
-                                  "train": self.schedule.number,
-                                  **diagnostics_values(c, life, recent, lost, bool(final)),
-                                  "scheduling": self.scheduling.text}
+        run = self.run
+        head = {"state": self.status.text, "trains_done": self.schedule.trains_done, "train": self.schedule.number,
+                "scheduling": self.scheduling.text}
+        level, message, values = self.status.diagnostics(
+            *self.counts(), run.recent_lags if run else (), run.vehicle.contact_lost_steps if run else 0,
+            self.closed_loop, head, final)
         if final:
-            values["final_train"] = final
-            self._final_values = {k: v for k, v in values.items() if k.startswith("train.") or k in (
-                "final_train", "scheduling")}
             self._latch()
-        level, message = (DiagnosticStatus.ERROR if self._model_error else self.level), self.state_text
-        # the closed loop is open in effect when answers come too late: more than 1 % of the messages published
-        # since the last diagnostics
-        published, stale = c.published - self._diag_mark[0], c.stale - self._diag_mark[1]
-        self._diag_mark = (c.published, c.stale) if c.published >= self._diag_mark[0] else (0, 0)
-        if level == DiagnosticStatus.OK and self.closed_loop and published >= 100 and stale > 0.01 * published:
-            level = DiagnosticStatus.WARN
-            message += f" ({stale} of the last {published} answers too late for the closed loop)"
         publish_status(self, self._pub_diag, f"{self.get_fully_qualified_name()}: vehicle simulator", level, message,
                        values)
 

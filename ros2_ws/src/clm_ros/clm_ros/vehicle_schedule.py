@@ -17,9 +17,11 @@ No ROS here (unit-tested without a middleware, ``tests/ros/test_vehicle_schedule
 - :class:`AnswerWatch`: the messages not answered yet (stamp -> step, due
   time, send time) and the track node's silence. Silence is counted only
   while messages are outstanding, from the oldest one sent since the last
-  answer: a vehicle that itself stood still (a stopped process, a pause
-  between trains, the end of a train) never blames the track node; silence
-  ends at the next answer.
+  answer, and from the vehicle's own resume: a message sent later than its
+  due time by more than half the timeout means the vehicle itself stood
+  still (a stopped process, a loaded machine) and is catching up, so the
+  answers to what it sent before cannot have been taken yet. A vehicle that
+  stood still never blames the track node; silence ends at the next answer.
 """
 
 from __future__ import annotations
@@ -39,10 +41,13 @@ from clm_core.io.errors import MessageError
 from clm_core.io.messages import decode_wheel_rail_response, encode_wheel_loads
 from clm_core.io.timebase import NS
 from clm_core.online.model import model_params
+from clm_core.settings import setting
 from clm_core.vehicle.run import VehicleRunSpec, build_vehicle_run
 from clm_core.vehicle.streaming import StreamingVehicle
 from clm_ros.vehicle_counts import Counts
 
+#: Settings of the node's schedule that :func:`build_plan` checks (the others are checked when the run is built).
+CHECKED = ("trains", "headway", "train_pause", "track_node", "answer_timeout", "exit_when_done")
 #: Answers older than this are forgotten (a later answer counts as unmatched) [s].
 FORGET_AFTER = 30.0
 
@@ -97,7 +102,8 @@ def build_plan(values: Mapping[str, Any]) -> VehiclePlan:
         ``cars``, ``speed`` [m/s], ``duration`` [s], ``rate`` [Hz], ``dt`` [s],
         ``start`` [m], ``irregularity``, ``seed``, ``wavelength_band``,
         ``max_feedback_delay`` [s] and the parameter set's (``track``,
-        ``soil``, ``model``, ``params_file``; :func:`clm_core.online.model.model_params`).
+        ``soil``, ``model``, ``params_file``; :func:`clm_core.online.model.model_params`). The schedule's
+        settings among them (:data:`CHECKED`) are checked against their rules.
 
     Returns
     -------
@@ -108,6 +114,9 @@ def build_plan(values: Mapping[str, Any]) -> VehiclePlan:
     ClmError
         An invalid setting (naming it), or ``1 / (rate dt)`` not a whole number.
     """
+    for name in CHECKED:
+        if name in values:
+            setting(name).check(values[name])
     g = values.__getitem__
     spec = VehicleRunSpec(
         vehicle=g("vehicle"), cars=int(g("cars")), speed=float(g("speed")), duration=float(g("duration")),
@@ -219,6 +228,7 @@ class AnswerWatch:
         #: the track node has been silent for ``timeout_ns`` (until its next answer)
         self.silent = False
         self._last_answer = 0  # when the last answer was received [ns]
+        self._resumed = 0  # when the vehicle last sent a message it was late with (it had stood still) [ns]
 
     def clear(self) -> None:
         """A new train: nothing outstanding, no silence."""
@@ -226,8 +236,11 @@ class AnswerWatch:
         self.silent = False
 
     def sent(self, stamp: int, step: int, due: int, now: int) -> None:
-        """Message ``stamp`` (vehicle step ``step``, due at ``due``) was sent at ``now`` [ns]."""
+        """Message ``stamp`` (vehicle step ``step``, due at ``due``) was sent at ``now`` [ns]; later than ``due`` by
+        more than half the timeout: the vehicle stood still and resumes (silence counts from here)."""
         self.outstanding[stamp] = (step, due, now)
+        if now - due > self.timeout_ns // 2:
+            self._resumed = now
 
     def answer(self, stamp: int, now: int) -> tuple[int, int] | None:
         """The answer to ``stamp`` came at ``now``: (step, due time) of its message, None if not outstanding.
@@ -241,7 +254,8 @@ class AnswerWatch:
 
     def silence_began(self, now: int) -> bool:
         """Forget messages older than ``forget_ns``; True once when the oldest message sent since the last answer
-        has waited ``timeout_ns`` (then :attr:`silent` stays True until the next answer)."""
+        and the vehicle's last resume has waited ``timeout_ns`` (then :attr:`silent` stays True until the next
+        answer)."""
         out = self.outstanding
         old = now - self.forget_ns
         while out:
@@ -251,7 +265,7 @@ class AnswerWatch:
             del out[first]
         if self.silent or not out:
             return False
-        since = max(next(iter(out.values()))[2], self._last_answer)
+        since = max(next(iter(out.values()))[2], self._last_answer, self._resumed)
         if now - since > self.timeout_ns:
             self.silent = True
             return True
