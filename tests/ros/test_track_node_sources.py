@@ -34,10 +34,12 @@ from clm_core.io.timebase import NS
 
 #: The second publisher: ``n`` frames of another vehicle (100 m further) stamped between the source's (+0.5 ms),
 #: published at ~1 kHz once the track node's subscription is matched; then, once the file ``go`` exists, ``n2``
-#: more continuing its own stream. Closed loop (``t0`` = 0): one frame for each wheel-load message heard from the
-#: vehicle, stamped 0.5 ms after it, so that all ``n`` are sent while the vehicle's train runs (paced on its own
-#: clock they outlasted a 3-s train on a loaded machine: the vehicle left, the rest of the foreign stream was taken
-#: over as a new one instead of refused, and the test waited for refusals that never came).
+#: more continuing its own stream. Closed loop (``t0`` = 0): once the vehicle's first message is heard, the ``n``
+#: frames at once, stamped between the vehicle's (its first stamp + k ms + 0.5 ms), so that all are sent and refused
+#: while the vehicle's train runs: paced at 1 kHz on its own clock, they outlasted the vehicle's 3-s train on a loaded
+#: machine (a late start, sleeps of more than 1 ms): the vehicle left the graph, the rest of the foreign stream was
+#: taken over as a new one instead of refused, and the test waited for refusals that never came. Its reader exists
+#: before the vehicle starts (the vehicle waits for 2 readers: the track node and this one).
 SECOND = """
 import sys, time
 from pathlib import Path
@@ -51,29 +53,24 @@ rclpy.init()
 node = rclpy.create_node("second_source")
 qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 pub = node.create_publisher(WheelLoads, "wheel_loads", qos)
+heard = []
+if t0 == 0:  # closed loop: a reader of the vehicle's messages (the vehicle waits for it: wait_for_subscribers 2)
+    node.create_subscription(WheelLoads, "wheel_loads", heard.append, qos, raw=True)
 while pub.get_subscription_count() < 1:
     rclpy.spin_once(node, timeout_sec=0.05)
-def frame(k, stamp=None):
+def frame(k):
     x = 130.0 + 30.0 * k * 1e-3
-    stamp = t0 + k * 10**6 if stamp is None else stamp
-    return encode_wheel_loads(stamp, "track", [0, 1], np.array([x, x - 2.5]), np.array([9e4, 9e4]))
-if t0 == 0:  # closed loop: one frame per message heard from the vehicle, 0.5 ms after its stamp
+    return encode_wheel_loads(t0 + k * 10**6, "track", [0, 1], np.array([x, x - 2.5]), np.array([9e4, 9e4]))
+pace = 0.001
+if t0 == 0:  # closed loop: at the vehicle's first message, all at once, stamped between the vehicle's
     from clm_core.io.messages import decode_wheel_loads
-    heard, own, k, t_first = [], set(), 0, 0.0
-    node.create_subscription(WheelLoads, "wheel_loads", heard.append, qos, raw=True)
-    while k < n:
+    while not heard:
         rclpy.spin_once(node, timeout_sec=0.01)
-        while heard and k < n:
-            stamp = decode_wheel_loads(heard.pop(0)).stamp_ns
-            if stamp not in own:  # (its own frames come back to its own subscription)
-                own.add(stamp + 500_000)
-                pub.publish(frame(k, stamp + 500_000))
-                t_first, k = t_first or time.monotonic(), k + 1
-    print(f"{n} frames sent in {time.monotonic() - t_first:.2f} s", flush=True)
-    n = 0
+    t0, pace = decode_wheel_loads(heard[0]).stamp_ns + 500_000, 0.0
 for k in range(n):
     pub.publish(frame(k))
-    time.sleep(0.001)
+    if pace:
+        time.sleep(pace)
 print("first batch sent", flush=True)
 while not go.exists():
     rclpy.spin_once(node, timeout_sec=0.05)
@@ -139,9 +136,9 @@ def test_closed_loop_vehicle_keeps_contact_with_a_second_source(ros_python, ros_
 
     track = ros_python.spawn("import sys\nfrom clm_ros.track_node import main\nsys.exit(main(sys.argv))\n",
                              ["--ros-args", "-p", "diagnostics_period:=0.2"], name="track_node")
+    args = vehicle_args("-p", "trains:=1", "-p", "exit_when_done:=true", "-p", "wait_for_subscribers:=2", duration=3.0)
     vehicle = ros_python.spawn("import sys\nfrom clm_ros.vehicle_node import main\nsys.exit(main(sys.argv))\n",
-                               ["--ros-args", *vehicle_args("-p", "trains:=1", "-p", "exit_when_done:=true",
-                                                            duration=3.0)], name="vehicle_node")
+                               ["--ros-args", *args], name="vehicle_node")
     vehicle.expected_exit = True
     second = ros_python.spawn(SECOND, ["0", "1500", "0", str(tmp_path / "go")], name="second")
     second.expected_exit = True

@@ -108,8 +108,9 @@ class VehicleNode(LifecycleNode):
             self.log.error(f"configure refused: {exc}")
             self.plan = None
             return TransitionCallbackReturn.FAILURE
-        self.schedule = TrainSchedule(int(self.p("trains")), int(float(self.p("headway")) * NS),
-                                      int(float(self.p("train_pause")) * NS))
+        old, self.schedule = self.schedule, TrainSchedule(int(self.p("trains")), int(float(self.p("headway")) * NS),
+                                                          int(float(self.p("train_pause")) * NS))
+        self.schedule.number, self.schedule.trains_done = old.number, old.trains_done  # numbered over the node's life
         self.watch = AnswerWatch(int(float(self.p("answer_timeout")) * NS))
         self.closed_loop = bool(self.p("closed_loop"))
         qos = QoSOverridingOptions.with_default_policies()
