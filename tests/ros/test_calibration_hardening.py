@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -34,7 +35,9 @@ from action_msgs.srv import CancelGoal
 from clm_msgs.action import Calibrate as CalibrateAction
 from clm_msgs.srv import Calibrate
 from clm_ros.calibration_node import REQUEST_DEPTH, request_qos
+from clm_ros.reliable_client import GoalTracker, answered
 from rclpy.action import ActionClient
+from rclpy.action.client import ClientGoalHandle
 from test_calibration_node import (
     FIT_TIMEOUT,
     IMPACT_BAG,
@@ -45,6 +48,7 @@ from test_calibration_node import (
     _check_aborted,
     _start_calibration_node,
 )
+from unique_identifier_msgs.msg import UUID
 
 BURST = 50
 
@@ -75,6 +79,30 @@ def _burst_client(c: Client) -> ActionClient:
     return cli
 
 
+def _warm_up(c: Client, cli: ActionClient, srv: Any, missing: Path) -> None:
+    """Before a burst: one harmless request of each kind (a goal and a service call on a bag that does not exist,
+    a cancel of an unknown goal), sent again until answered, so that the node's answer writers have matched this
+    client's readers. Discovery is two-sided: ``server_is_ready()`` says nothing of the server's side, and an answer
+    the node sends before its writer has matched is dropped (docs/ros-nodes.md, "Service and action races"); on a
+    loaded machine (the full suite) a burst sent at once met it: its answers never came (the burst test was
+    quarantined for that). Counted: 2 accepted, 2 failed."""
+    goal = GoalTracker(c.node, cli, c._until)
+    h = goal.send(CalibrateAction.Goal(bag_path=f"{missing}_warm"), 60.0)
+    assert h.accepted and "does not exist" in goal.result(h, 60.0).result.message
+    r = answered(srv, Calibrate.Request(bag_path=f"{missing}_warm", method="impact", request_id=uuid.uuid4().hex),
+                 c._until, 60.0)
+    assert "does not exist" in r.message
+    unknown = ClientGoalHandle(cli, UUID(uuid=list(uuid.uuid4().bytes)), None)
+    deadline = time.monotonic() + 60.0
+    while True:
+        fut = unknown.cancel_goal_async()  # a cancel of a goal the node does not know: changes nothing
+        c._until(fut.done, 2.0)
+        if fut.done():
+            return
+        assert time.monotonic() < deadline, "no answer to a cancel within 60 s"
+        cli._remove_pending_cancel_request(fut)
+
+
 def _values(st: Any) -> dict[str, str]:
     return {kv.key: kv.value for kv in st.values}
 
@@ -88,6 +116,7 @@ def test_burst_of_goals_and_service_calls_all_answered(ros_python, client_factor
     srv = c.node.create_client(Calibrate, NAME, qos_profile=request_qos())
     c.wait_for(srv.service_is_ready, "burst service client")
     missing = tmp_path / "no_such_bag"
+    _warm_up(c, cli, srv, missing)
     goal_futs = [cli.send_goal_async(CalibrateAction.Goal(bag_path=f"{missing}_{k}")) for k in range(BURST)]
     call_futs = [srv.call_async(Calibrate.Request(bag_path=f"{missing}_s{k}", method="impact")) for k in range(BURST)]
     c.wait_for(lambda: all(f.done() for f in goal_futs), "every goal response", 60.0)
@@ -101,36 +130,34 @@ def test_burst_of_goals_and_service_calls_all_answered(ros_python, client_factor
     n_calls = sum((not f.result().success) and "does not exist" in f.result().message for f in call_futs)
     print(f"answered: goals {n_goals}/{BURST}, service calls {n_calls}/{BURST}")
     assert (n_goals, n_calls) == (BURST, BURST)
-    _, v = c.last_diag(lambda v: v.get("goals_failed") == str(2 * BURST), "every goal and call counted")
-    assert v["goals_accepted"] == str(2 * BURST) and v["goals_rejected"] == "0" and v["state"] == "idle"
+    _, v = c.last_diag(lambda v: v.get("goals_failed") == str(2 * BURST + 2), "every goal and call counted")
+    assert v["goals_accepted"] == str(2 * BURST + 2) and v["goals_rejected"] == "0" and v["state"] == "idle"
 
 
-@pytest.mark.skip(reason=(
-    'quarantined (issue 26.1): failed in the full ROS suite on 2026-12-03 (no goal response within 60 s '
-    'behind a long fit) though it passed alone on its branch; the 50-goal / 50-call burst test beside it '
-    'runs'
-))
-def test_burst_beyond_the_queue_is_refused_and_counted(ros_python, client_factory) -> None:  # type: ignore[no-untyped-def]
+def test_burst_beyond_the_queue_is_refused_and_counted(ros_python, client_factory, tmp_path) -> None:  # type: ignore[no-untyped-def]
     _start_calibration_node(ros_python, "-p", "max_queued:=2")
     c = client_factory()
     c.ready()
     cli = _burst_client(c)
     srv = c.node.create_client(Calibrate, NAME, qos_profile=request_qos())
     c.wait_for(srv.service_is_ready, "burst service client")
+    _warm_up(c, cli, srv, tmp_path / "no_such_bag")
     running = cli.send_goal_async(CalibrateAction.Goal(bag_path=str(RECEPTANCE_BAG), **LONG_FIT))
     c.wait_for(running.done, "the long goal's response")
     assert running.result().accepted
     c.last_diag(lambda v: v.get("state") == "running", "the long fit running")
+    t0 = time.monotonic()
     goal_futs = [cli.send_goal_async(CalibrateAction.Goal(bag_path=str(IMPACT_BAG))) for _ in range(BURST)]
     call_futs = [srv.call_async(Calibrate.Request(bag_path=str(IMPACT_BAG), method="impact")) for _ in range(BURST)]
     c.wait_for(lambda: all(f.done() for f in goal_futs + call_futs), "every goal response and service answer", 60.0)
+    print(f"burst of {2 * BURST} answered in {time.monotonic() - t0:.2f} s behind the running fit")
     accepted = [f.result() for f in goal_futs if f.result().accepted]
     busy = [f.result() for f in call_futs if f.result().message.startswith("busy: a calibration is running")]
     print(f"burst behind a running fit (max_queued 2): {len(accepted)} goals accepted, "
           f"{BURST - len(accepted)} rejected; {len(busy)} of {BURST} service calls answered busy")
     assert len(accepted) == 2 and len(busy) == BURST and not any(f.result().success for f in call_futs)
     _, v = c.last_diag(lambda v: v.get("goals_rejected") == str(2 * BURST - 2), "every refusal counted")
-    assert v["queued"] == "2" and v["goals_accepted"] == "3"
+    assert v["queued"] == "2" and v["goals_accepted"] == "5"  # the warm-up's 2, the long goal, 2 queued
     # a burst of cancels (every accepted goal, each asked 25 times), every one answered
     handles = [running.result(), *accepted]
     cancels = [cli._cancel_goal_async(h) for h in handles for _ in range(25)]

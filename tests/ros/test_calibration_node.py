@@ -559,3 +559,47 @@ def test_push_values_and_target_names() -> None:
     for bad, why in (("", "target_node is empty"), ("/1track", "not a valid node name"), ("a b", "not a valid")):
         with pytest.raises(ValueError, match=why):
             target_service(bad)
+
+
+def test_service_request_id_never_runs_a_fit_twice(ros_python, client_factory) -> None:  # type: ignore[no-untyped-def]
+    """Issue 21: a service client whose response is lost sends again; with the same ``request_id`` it gets the first
+    request's outcome (waiting for it while it runs), never a second fit. The loss is real: the first client is
+    destroyed while its fit runs (its answer has no reader), a new client sends the same request; once more after
+    the end (a late resend); a new id is a new fit."""
+    import uuid
+
+    _start_calibration_node(ros_python)
+    c = client_factory()
+    c.ready()
+    req = Calibrate.Request(bag_path=str(IMPACT_BAG), method="impact", request_id=uuid.uuid4().hex)
+    lost = c.node.create_client(Calibrate, NAME)
+    c.wait_for(lost.service_is_ready, "the first client")
+    lost.call_async(req)
+    c.last_diag(lambda v: v.get("goals_accepted") == "1", "the first request accepted")
+    c.node.destroy_client(lost)  # its answer will be lost
+    again = c.node.create_client(Calibrate, NAME)
+    c.wait_for(again.service_is_ready, "the client that sends again")
+    second = answered(again, req, c._until, FIT_TIMEOUT)  # safe to resend: the request has an id
+    third = answered(again, req, c._until, TIMEOUT)  # after the end
+    assert second.success, second.message
+    assert (third.success, third.message, third.metrics_json, third.parameters_yaml) == (
+        second.success, second.message, second.metrics_json, second.parameters_yaml)  # one fit, one answer
+    _, v = c.last_diag(lambda v: v.get("goals_succeeded") == "1" and v.get("state") == "idle"
+                       and int(v.get("repeated_requests", "0")) >= 2, "one fit done, the resends counted")
+    assert v["goals_accepted"] == "1" and v["goals_failed"] == "0", v
+    other = answered(again, Calibrate.Request(bag_path=str(IMPACT_BAG), method="impact",
+                                              request_id=uuid.uuid4().hex), c._until, FIT_TIMEOUT)
+    assert other.success, other.message
+    _, v = c.last_diag(lambda v: v.get("goals_succeeded") == "2", "the new id's fit")
+    assert v["goals_accepted"] == "2"
+
+
+def test_calibration_settings_in_the_node_settings_table() -> None:
+    """The calibration node's settings live in clm_ros.parameters.NODE_SETTINGS; its methods are the core's."""
+    from clm_ros.parameters import NODE_SETTINGS
+
+    from clm_core.calibration.options import METHODS
+
+    assert NODE_SETTINGS["default_method"].choices == METHODS
+    assert NODE_SETTINGS["default_method"].default in METHODS
+    assert NODE_SETTINGS["max_queued"].default == 4 and NODE_SETTINGS["allowed_roots"].read_only

@@ -324,3 +324,58 @@ def test_waits_for_the_track_node_s_own_word_that_it_matched(graph, ros_domain_i
         assert vehicle.poll() is None
     finally:
         stand_in.close()
+
+
+def _hold(w: Watcher, seconds: float) -> None:
+    """Spin the watcher for ``seconds`` (a process stopped meanwhile; no condition to wait on)."""
+    t_end = time.monotonic() + seconds
+    w.wait_for(lambda: time.monotonic() >= t_end, f"{seconds:g} s passing")
+
+
+def test_stopped_vehicle_does_not_blame_the_track_node(graph) -> None:  # type: ignore[no-untyped-def]
+    """Issue 26.9: the vehicle's process stopped (SIGSTOP) for 6 answer timeouts, then continued. Nothing was
+    outstanding while it stood still: it catches up, its answers flow, and it never reports the track node silent
+    (before: 'no answer from the track node' at once on resuming, the silence measured from the last answer)."""
+    make, run = graph
+    w = make()
+    w.listen()
+    vehicle = run("vehicle_node", *vehicle_args(duration=600.0))  # answer_timeout 0.5 s
+    track = run("track_node")
+    answered = lambda: int(w.last().get("train.answered", 0))  # noqa: E731
+    w.wait_for(lambda: answered() > 500, "answers flowing")
+    vehicle.send_signal(signal.SIGSTOP)
+    try:
+        _hold(w, 3.0)
+    finally:
+        vehicle.send_signal(signal.SIGCONT)
+    n = answered()
+    w.wait_for(lambda: answered() > n + 3000, "the train caught up and answered after the stop")
+    code, out, _ = stop(vehicle, signal.SIGTERM)
+    assert code == 0 and "Traceback" not in out, out
+    blamed = [m for _, m, _ in w.diag if "no answer" in m]
+    print(f"stopped 3 s: {answered()} answered, warnings {blamed[:1]}")
+    assert not blamed and "no answer from the track node" not in out, (blamed[:3], out[-2000:])
+    stop(track)
+
+
+def test_silent_track_node_still_reported(graph) -> None:  # type: ignore[no-untyped-def]
+    """A track node that is there but silent (SIGSTOP: on the graph, matched, no answer) while the vehicle runs is
+    reported after answer_timeout (WARN, logged once); when it continues, its answers are used again."""
+    make, run = graph
+    w = make()
+    w.listen()
+    vehicle = run("vehicle_node", *vehicle_args(duration=600.0))
+    track = run("track_node")
+    answered = lambda: int(w.last().get("train.answered", 0))  # noqa: E731
+    w.wait_for(lambda: answered() > 500, "answers flowing")
+    track.send_signal(signal.SIGSTOP)
+    try:
+        w.wait_for(lambda: bool(w.diag) and w.diag[-1][0] == 1 and "no answer" in w.diag[-1][1],
+                   "the vehicle reporting the silent track node")
+    finally:
+        track.send_signal(signal.SIGCONT)
+    n = answered()
+    w.wait_for(lambda: answered() > n + 300 and "no answer" not in w.diag[-1][1], "answers again, WARN cleared")
+    code, out, _ = stop(vehicle, signal.SIGTERM)
+    assert code == 0 and out.count("no answer from the track node") == 1 and "answers again" in out, out
+    stop(track)

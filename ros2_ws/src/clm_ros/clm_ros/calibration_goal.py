@@ -32,16 +32,10 @@ import yaml
 
 from clm_core.calibration import CalibrationError, CalibrationOptions, CalibrationResult, SoilFit
 from clm_core.io.files import dumps_json
-from clm_core.settings import Setting
 from clm_ros.calibration_push import PushOutcome, one_line
 
 #: Terminal states of a calibration (the action's SUCCEEDED, ABORTED, CANCELED).
 SUCCEEDED, ABORTED, CANCELED = "succeeded", "aborted", "canceled"
-
-ALLOWED_ROOTS: Setting[str] = Setting(
-    "allowed_roots", str, ".", "-", "directories (comma-separated) under which a goal's bag, parameter file and "
-    "channel map may lie ('.': the node's working directory)", read_only=True)
-
 
 def parse_roots(text: str) -> tuple[Path, ...]:
     """The directories of ``allowed_roots`` (comma-separated), resolved (``.``: the working directory).

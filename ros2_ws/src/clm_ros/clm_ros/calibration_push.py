@@ -33,6 +33,7 @@ from rclpy.validate_full_topic_name import validate_full_topic_name
 
 from clm_core.calibration import CalibrationError, CalibrationResult
 from clm_core.params import PARAMETER_DOCS, SOIL_NAMES
+from clm_ros.node_log import NodeLog
 
 #: Poll interval while waiting for a target's service and answer [s]; a stop request is seen this fast.
 POLL_S = 0.02
@@ -184,10 +185,13 @@ class ParameterPusher:
     stop : threading.Event
         Set when the node shuts down: a push waiting for a service or an
         answer gives up within :data:`POLL_S`.
+    log : NodeLog, optional
+        Where pushes are logged (default: a :class:`clm_ros.node_log.NodeLog` of ``node``).
     """
 
-    def __init__(self, node: Node, stop: threading.Event) -> None:
+    def __init__(self, node: Node, stop: threading.Event, log: NodeLog | None = None) -> None:
         self._node = node
+        self._log = log if log is not None else NodeLog(node)
         self._stop = stop
         self._clients: dict[str, Client] = {}
         self._lock = threading.Lock()
@@ -242,7 +246,7 @@ class ParameterPusher:
 
         def outcome(accepted: bool, reason: str) -> PushOutcome:
             if not accepted:
-                self._node.get_logger().warning(f"push to {target} failed: {reason}")
+                self._log.warning(f"push to {target} failed: {reason}")
             return PushOutcome(target=target, service=service, accepted=accepted, reason=reason,
                                values=dict(values), elapsed_s=time.monotonic() - t0)
 
@@ -279,5 +283,5 @@ class ParameterPusher:
         if not res.result.successful:
             reason = one_line(res.result.reason) or "no reason given"
             return outcome(False, f"{target} refused the parameters: {reason}")
-        self._node.get_logger().info(f"pushed {', '.join(f'{k} = {v:.6g}' for k, v in values.items())} to {target}")
+        self._log.info(f"pushed {', '.join(f'{k} = {v:.6g}' for k, v in values.items())} to {target}")
         return outcome(True, "")

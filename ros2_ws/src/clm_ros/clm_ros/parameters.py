@@ -181,8 +181,15 @@ NODE_SETTINGS: dict[str, Setting[Any]] = {
         ANSWER_LOOP,
         TRAINS, HEADWAY, TRAIN_PAUSE, TRACK_NODE, ANSWER_TIMEOUT, EXIT_WHEN_DONE, START_SIGNAL,
         DOMAIN_ID, FLEET_TRAINS, FLEET_FIRST_INDEX,
-        # ---- the calibration node's own settings (calibration_node.py: DEFAULT_METHOD, MAX_QUEUED, ALLOWED_ROOTS)
-        # ---- move here (issue 22, helper vehcal): define them above this table and list them on this line.
+        # --- the calibration node's (were calibration_node.py DEFAULT_METHOD, MAX_QUEUED and calibration_goal.py
+        # ALLOWED_ROOTS; the methods are clm_core.calibration.options.METHODS, not imported here to keep the
+        # calibration package out of every node's start: tests/ros/test_calibration_node.py checks they agree)
+        Setting("default_method", str, "impact", "-", "method used when a goal leaves 'method' empty",
+                choices=("impact", "receptance", "passby")),
+        Setting("max_queued", int, 4, "-", "goals that may wait while one runs (0: reject while busy)", minimum=0,
+                maximum=1000),
+        Setting("allowed_roots", str, ".", "-", "directories (comma-separated) under which a goal's bag, "
+                "parameter file and channel map may lie ('.': the node's working directory)", read_only=True),
     )
 }
 
