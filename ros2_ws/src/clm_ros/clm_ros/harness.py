@@ -62,6 +62,14 @@ STOP_TIMEOUT = 45.0
 SUPERVISOR_TRANSPORTS = "UDPv4"
 #: Terminal train states.
 ENDED = ("done", "failed", "timeout")
+#: The data topics of a train (relative to its namespace): what its writers must keep for a recorder.
+DATA_TOPICS = ("wheel_loads", "sleeper_response", "wheel_rail_response")
+#: Messages a train's writers keep beyond its own messages while a recorder has not acknowledged them.
+HISTORY_MARGIN = 1000
+#: Most messages a train's writers keep for a recorder that falls behind (60 s at 1 kHz; ~3 KB per 61-sleeper
+#: answer, held only while unacknowledged): a longer train is recorded completely only if its recorder is never
+#: that far behind (the summary then says what is missing, the offline check fails).
+MAX_HISTORY = 60000
 
 
 @dataclass
@@ -77,6 +85,20 @@ class TrainSpec:
     vehicle_params: Mapping[str, Any]
     pair_process: bool = False
     start_offset: float = 0.0
+    messages: int = 0
+
+    def history(self) -> dict[str, int]:
+        """The QoS override parameters that make its data writers keep a whole train for a recorder.
+
+        A reliable keep-last writer drops a sample its history overwrites even when a reader has not acknowledged
+        it: with the nodes' default depth of 5000, a recorder more than 5 s behind lost the first of a train's 5001
+        wheel loads and its answers (issue 21: a 5-train fleet's offline replay then differed). With the depth at
+        the train's messages (+ :data:`HISTORY_MARGIN`, at most :data:`MAX_HISTORY`) nothing of a train is
+        overwritten before the recorder has it; a volatile writer frees what every reader has acknowledged, so
+        the memory is held only while the recorder lags.
+        """
+        depth = min(self.messages + HISTORY_MARGIN, MAX_HISTORY)
+        return {f"qos_overrides.{self.ns}/{t}.publisher.depth": depth for t in DATA_TOPICS}
 
     def topic(self, t: str) -> str:
         """Full name of this train's topic ``t``."""
@@ -198,6 +220,8 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
         logs[stem] = open(out / f"{stem}.log", "w")
         module = "fleet_pair" if kind == "pair" else kind
         ns = ["-r", f"__ns:={t.spec.ns}"] if t.spec.ns else []
+        if topics is not None and t.spec.messages:  # its writers keep the whole train for the recorder
+            params = {**params, **t.spec.history()}
         t.procs[kind] = subprocess.Popen([sys.executable, "-m", f"clm_ros.{module}", *ros_args(params), *ns],
                                          env=env, stdout=logs[stem], stderr=subprocess.STDOUT)
 

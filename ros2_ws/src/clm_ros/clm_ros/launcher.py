@@ -114,7 +114,7 @@ def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float, ready_timeo
     spec = TrainSpec(
         "demo", "", {**run.track_parameters(), "monitored_sleepers": DEMO_MONITORED_SLEEPERS},
         # one train, then the vehicle idles until stopped here; it waits for its track node and this recorder
-        run.vehicle_parameters(wait_for_subscribers=2))
+        run.vehicle_parameters(wait_for_subscribers=2), messages=run.messages)
     bar = Progress(run.messages, "clm demo", unit="msg")
     try:
         r = run_trains(out, [spec], domain_id=dom, env=ros_env(dom), topics=TOPICS, bag_name="demo_bag",

@@ -82,7 +82,9 @@ def run(args: argparse.Namespace) -> int:
                  "offline replay not checked" if "offline_equal" not in t else "NOT equal to offline replay")
         print(f"fleet: {name}: {t['messages_in']} in, {t['messages_out']} out; lag median "
               f"{quantity(t['lag_median_s'], 's')}, p99 {quantity(t['lag_p99_s'], 's')}, max "
-              f"{quantity(t['lag_max_s'], 's')}; feedback {t['feedback_used']}/{t['feedback_total']} "
+              f"{quantity(t['lag_max_s'], 's')}"
+              + (f" (recorder behind by p99 {quantity(t['recorder_lag_p99_s'], 's')})" if "recorder_lag_p99_s" in t
+                 else "") + f"; feedback {t['feedback_used']}/{t['feedback_total']} "
               f"({used:.1f} %); {check}")
     o = s["overall"]
     print(f"fleet: worst lag p99 {quantity(o['worst_lag_p99_s'], 's')}, max {quantity(o['worst_lag_max_s'], 's')}; "
