@@ -76,6 +76,11 @@ PAIR_TOPICS = {
     "sleeper_response": "clm_msgs/msg/SleeperResponse",
     "wheel_rail_response": "clm_msgs/msg/WheelRailResponse",
 }
+#: What the fleet records of each pair by default: its wheel loads (the input of the offline check) and the answers
+#: that close its loop. Not the 61-sleeper ``sleeper_response`` (~3 KB, a third of the messages) unless asked
+#: (``record_sleepers``): every recorded topic costs the pair a send per message to one more reader and the
+#: recorder a take and a write (docs/fleet.md: capacity).
+RECORDED = ("wheel_loads", "wheel_rail_response")
 #: DDS discovery ranges (``ROS_AUTOMATIC_DISCOVERY_RANGE``): LOCALHOST keeps the graph on this machine.
 DISCOVERY_RANGES = ("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT")
 
@@ -122,6 +127,7 @@ def run_fleet(
     progress: bool = True,
     pair_process: bool = False,
     stagger: float = 0.0,
+    record_sleepers: bool = False,
 ) -> dict[str, Any]:
     """Run ``trains`` vehicle + track node pairs; return the summary (also ``out_dir/summary.json``).
 
@@ -137,7 +143,9 @@ def run_fleet(
     ``pair_process``: each pair's two nodes in one process on one executor
     (:mod:`clm_ros.fleet_pair`) instead of two processes. The trains start
     together once all are ready; ``stagger`` [s]: train ``i`` starts
-    ``i * stagger`` after the first (a schedule).
+    ``i * stagger`` after the first (a schedule). The bag holds each pair's
+    :data:`RECORDED` topics, and its ``sleeper_response`` with
+    ``record_sleepers``.
 
     Raises
     ------
@@ -158,7 +166,8 @@ def run_fleet(
         raise ClmRosError(f"{bag}: exists; choose another output directory or pass overwrite (--overwrite)")
     env = fleet_env(run.domain_id, discovery_range, static_peers)  # checks the range before anything starts
     kw: dict[str, Any] = dict(trains=trains, first_index=first_index, record=record, verify=verify, timeout=timeout,
-                              progress=progress, pair_process=pair_process, stagger=stagger)
+                              progress=progress, pair_process=pair_process, stagger=stagger,
+                              record_sleepers=record_sleepers)
     if not hold_domain:
         return _run_fleet(run.domain_id, env, Path(out_dir), run, **kw)
     with hold_domain_id(run.domain_id) as dom:
@@ -167,7 +176,7 @@ def run_fleet(
 
 def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, trains: int, first_index: int,
                record: bool, verify: bool, timeout: float, progress: bool, pair_process: bool,
-               stagger: float) -> dict[str, Any]:
+               stagger: float, record_sleepers: bool) -> dict[str, Any]:
     from clm_core.progress import Progress
 
     track_params = run.track_parameters()
@@ -175,7 +184,8 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
                        run.vehicle_parameters(seed_offset=first_index + i, wait_for_subscribers=2 if record else 1),
                        pair_process=pair_process, start_offset=i * stagger, messages=run.messages)
              for i, ns in enumerate(namespaces(trains, first_index))]
-    topics = {f"{s.ns}/{t}": m for s in specs for t, m in PAIR_TOPICS.items()}
+    recorded = (*RECORDED, "sleeper_response") if record_sleepers else RECORDED
+    topics = {f"{s.ns}/{t}": PAIR_TOPICS[t] for s in specs for t in recorded}
     bar = Progress(run.messages * trains if progress else None, "clm fleet", unit="msg")
     try:
         r = run_trains(out, specs, domain_id=dom, env=env,
@@ -218,6 +228,7 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
         "seeds": [run.seed + first_index + i for i in range(trains)],
         "bag": str(bag) if record else None, "ros_domain_id": dom,
         "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"], "pair_process": pair_process, "stagger_s": stagger,
+        "recorded_topics": list(recorded) if record else [],
     })
     write_json(out / "summary.json", summary)
     bad = [f"{k}: {t['status']}: {t['reason']}" for k, t in per_train.items() if not t["correct"]]
@@ -260,19 +271,24 @@ def _bag_figures(bag: Path, ns: str) -> dict[str, Any]:
     from clm_core.io.bags import BagReader
     from clm_core.io.timebase import lag_figures
 
-    stamps: dict[str, list[int]] = {t: [] for t in PAIR_TOPICS}
-    recv: list[int] = []
     with BagReader(bag) as reader:
-        for bm in reader.messages([f"{ns}/{t}" for t in PAIR_TOPICS]):
+        recorded = [t for t in PAIR_TOPICS if f"{ns}/{t}" in reader.topics]
+        stamps: dict[str, list[int]] = {t: [] for t in recorded}
+        recv: list[int] = []
+        for bm in reader.messages([f"{ns}/{t}" for t in recorded]):
             topic = bm.topic.rsplit("/", 1)[1]
             st = _decode(topic, bm.data).stamp_ns
             stamps[topic].append(st)
-            if topic == "sleeper_response":
+            if topic == "wheel_rail_response":
                 recv.append(bm.log_ns - st)
-    n_in, n_out, n_w = (len(stamps[t]) for t in PAIR_TOPICS)
-    ok = n_in > 0 and stamps["wheel_loads"] == stamps["sleeper_response"] == stamps["wheel_rail_response"]
+    answers = [stamps[t] for t in recorded if t != "wheel_loads"]
+    n_in = len(stamps.get("wheel_loads", []))
+    ok = n_in > 0 and bool(answers) and all(a == stamps["wheel_loads"] for a in answers)
     return {
-        "messages_in": n_in, "messages_out": n_out, "wheel_rail_responses": n_w,
+        "messages_in": n_in, "messages_out": len(stamps.get("wheel_rail_response", [])),
+        "wheel_rail_responses": len(stamps.get("wheel_rail_response", [])),
+        **({"sleeper_responses": len(stamps["sleeper_response"])} if "sleeper_response" in stamps else {}),
+        "recorded_topics": recorded,
         "in_equals_out": bool(ok),
         **lag_figures(recv).named("recorder_lag"),
     }
@@ -288,10 +304,12 @@ def _offline_check(bag: Path, ns: str, run: RunSettings) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="clm_fleet_") as tmp:
         stats = replay_bag(bag, Path(tmp) / "offline", m, topic=f"{ns}/wheel_loads", out_prefix=ns)
 
+        with BagReader(bag) as reader:  # the answers recorded live (the recorded topics)
+            topics = [f"{ns}/{t}" for t in ("sleeper_response", "wheel_rail_response") if f"{ns}/{t}" in reader.topics]
+
         def answers(path: Path) -> dict[tuple[str, int], Any]:
             got: dict[tuple[str, int], Any] = {}
             with BagReader(path) as reader:
-                topics = [f"{ns}/sleeper_response", f"{ns}/wheel_rail_response"]
                 for bm in reader.messages(topics):
                     m = _decode(bm.topic.rsplit("/", 1)[1], bm.data)
                     got[(bm.topic, m.stamp_ns)] = m
