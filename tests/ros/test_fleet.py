@@ -90,13 +90,20 @@ def test_fleet_pair_process_same_answers(tmp_path: Path, ros_domain_id: int) -> 
     from clm_ros.fleet import run_fleet
     from clm_ros.run_settings import RunSettings
 
+    from clm_core.io.bags import BagReader
+
     s = run_fleet(tmp_path / "f", RunSettings(duration=DURATION, domain_id=ros_domain_id), trains=1,
                   hold_domain=False, timeout=240, progress=False, pair_process=True)
     t = s["trains"]["train_0"]
     assert s["pair_process"] and s["exit_codes"] == {"/train_0/pair": 0} and t["exit_codes"] == {"pair": 0}
     assert t["messages_in"] == t["messages_out"] == t["feedback_total"] == N_MSG and t["in_equals_out"]
-    # by default the bag holds the wheel loads and the answers that close the loop (not the sleeper responses)
+    # by default the bag holds the wheel loads and the answers that close the loop (not the sleeper responses),
+    # recorded in the pair's own process to a bag of its own (no transport, no supervisor's recorder to send to)
     assert s["recorded_topics"] == ["wheel_loads", "wheel_rail_response"] and "sleeper_responses" not in t
+    assert s["recorded_in"] == "pair processes" and s["train_bags"] == {"train_0": str(tmp_path / "f" / "train_0_bag")}
+    with BagReader(tmp_path / "f" / "train_0_bag") as reader:
+        assert {k: i.message_count for k, i in reader.topics.items()} == {
+            "/train_0/wheel_loads": N_MSG, "/train_0/wheel_rail_response": N_MSG}
     assert t["offline_equal"] and t["offline_compared"] == N_MSG and t["correct"]
     assert set(t["cpu_us_per_message"]) == {"pair"}
 
@@ -170,11 +177,12 @@ def test_fleet_recorder_far_behind_loses_nothing(tmp_path: Path, ros_domain_id: 
     out = tmp_path / "fleet"
     duration = 6.0
     n_msg = round(duration * 1000) + 1
-    proc = subprocess.Popen([*CLM, "fleet", "--trains", "1", "--duration", str(duration), "--pair-process",
+    # two processes per pair: the supervisor records (with --pair-process each pair records in its own process)
+    proc = subprocess.Popen([*CLM, "fleet", "--trains", "1", "--duration", str(duration),
                              "--domain", str(ros_domain_id), "--join-domain", "--out", str(out)], env=ros_env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        log = out / "train_0_pair.log"
+        log = out / "train_0_vehicle_node.log"
         deadline = time.monotonic() + 240
         while not (log.exists() and "train 1 starts" in log.read_text()):
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()

@@ -55,6 +55,7 @@ Users with a full ROS install get the same graph from
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -81,6 +82,8 @@ PAIR_TOPICS = {
 #: (``record_sleepers``): every recorded topic costs the pair a send per message to one more reader and the
 #: recorder a take and a write (docs/fleet.md: capacity).
 RECORDED = ("wheel_loads", "wheel_rail_response")
+#: Bag of pair ``name`` when each pair process records its own topics (``pair_process``), in the output directory.
+PAIR_BAG = "{}_bag"
 #: DDS discovery ranges (``ROS_AUTOMATIC_DISCOVERY_RANGE``): LOCALHOST keeps the graph on this machine.
 DISCOVERY_RANGES = ("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT")
 
@@ -180,12 +183,18 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
     from clm_core.progress import Progress
 
     track_params = run.track_parameters()
+    recorded = (*RECORDED, "sleeper_response") if record_sleepers else RECORDED
+    own = record and pair_process  # each pair process records its own topics (clm_ros.fleet_pair)
     specs = [TrainSpec(ns.strip("/"), ns, track_params,
                        run.vehicle_parameters(seed_offset=first_index + i, wait_for_subscribers=2 if record else 1),
-                       pair_process=pair_process, start_offset=i * stagger, messages=run.messages)
+                       pair_process=pair_process, start_offset=i * stagger, messages=run.messages,
+                       own_bag=out / PAIR_BAG.format(ns.strip("/")) if own else None,
+                       own_topics=recorded if own else ())
              for i, ns in enumerate(namespaces(trains, first_index))]
-    recorded = (*RECORDED, "sleeper_response") if record_sleepers else RECORDED
-    topics = {f"{s.ns}/{t}": PAIR_TOPICS[t] for s in specs for t in recorded}
+    for s in specs:
+        if s.own_bag is not None and s.own_bag.exists():
+            shutil.rmtree(s.own_bag)
+    topics = {} if own else {f"{s.ns}/{t}": PAIR_TOPICS[t] for s in specs for t in recorded}
     bar = Progress(run.messages * trains if progress else None, "clm fleet", unit="msg")
     try:
         r = run_trains(out, specs, domain_id=dom, env=env,
@@ -194,19 +203,23 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
     finally:
         bar.close()
     bag = out / "fleet_bag"
-    n_all = sum(r.message_counts.get(f"{s.ns}/wheel_loads", 0) for s in specs)
+    counts = dict(r.message_counts)
+    for s in specs:
+        counts.update(_bag_counts(s.own_bag) if s.own_bag is not None else {})
+    n_all = sum(counts.get(f"{s.ns}/wheel_loads", 0) for s in specs)
     summary: dict[str, Any] = {
-        "recorder_cpu_us_per_message": 1e6 * r.recorder_cpu_s / n_all if record and n_all else None,
-        "message_counts": r.message_counts,
+        "recorder_cpu_us_per_message": 1e6 * r.recorder_cpu_s / n_all if record and n_all and not own else None,
+        "message_counts": counts,
     }
     per_train: dict[str, Any] = {}
     for t in r.trains:
         f = _train_figures(t, r.exit_codes)
+        data_bag = t.spec.own_bag or bag
         try:
             if record:
-                f.update(_bag_figures(bag, t.spec.ns))
+                f.update(_bag_figures(data_bag, t.spec.ns))
             if verify:
-                f.update(_offline_check(bag, t.spec.ns, run))
+                f.update(_offline_check(data_bag, t.spec.ns, run))
         except Exception as exc:  # a train that recorded nothing (it never started): say so, keep going
             f["check_error"] = str(exc)
         f["correct"] = bool(t.state == "done" and f["in_equals_out"] and f.get("offline_equal", True)
@@ -227,6 +240,8 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
         "n_trains": trains, "first_index": first_index, **run.summary(),
         "seeds": [run.seed + first_index + i for i in range(trains)],
         "bag": str(bag) if record else None, "ros_domain_id": dom,
+        "train_bags": {s.name: str(s.own_bag) for s in specs if s.own_bag is not None},
+        "recorded_in": "pair processes" if own else "supervisor" if record else None,
         "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"], "pair_process": pair_process, "stagger_s": stagger,
         "recorded_topics": list(recorded) if record else [],
     })
@@ -236,6 +251,17 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
         raise ClmRosError(f"{'; '.join(bad)}; the summary is {out}/summary.json" + (f", the bag {bag}" if record
                                                                                       else ""))
     return summary
+
+
+def _bag_counts(bag: Path) -> dict[str, int]:
+    """Messages per topic of a bag (its metadata); empty when there is no readable bag (a pair that died)."""
+    from clm_core.io.bags import BagReader
+
+    try:
+        with BagReader(bag) as reader:
+            return {t: info.message_count for t, info in reader.topics.items()}
+    except Exception:
+        return {}
 
 
 def _decode(topic: str, data: bytes) -> Any:
