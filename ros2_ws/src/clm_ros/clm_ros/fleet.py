@@ -264,13 +264,6 @@ def _bag_counts(bag: Path) -> dict[str, int]:
         return {}
 
 
-def _decode(topic: str, data: bytes) -> Any:
-    """The numpy CDR decoding (clm_core.io.messages) of a message of a pair's data topic ``topic``."""
-    from clm_core.io import messages
-
-    return getattr(messages, f"decode_{topic}")(data)
-
-
 def _train_figures(t: Train, codes: dict[str, int]) -> dict[str, Any]:
     """Train ``t``'s status and reason, what its vehicle reported at the end of its train, its exit codes."""
     v = {k.removeprefix("train."): number(x) for k, x in t.final.items() if k.startswith("train.")}
@@ -292,21 +285,15 @@ def _train_figures(t: Train, codes: dict[str, int]) -> dict[str, Any]:
 
 def _bag_figures(bag: Path, ns: str) -> dict[str, Any]:
     """In = out of pair ``ns`` as recorded (once each, in order) and the recorder's lag behind the data (its log
-    time, the reception by its middleware, of each ``sleeper_response`` minus the stamp): the recorder's backlog,
-    ``recorder_lag_*``, not the data path's lag (that is the vehicle's, ``lag_*``)."""
-    from clm_core.io.bags import BagReader
+    time, the reception by its middleware, of each ``wheel_rail_response`` minus the stamp): the recorder's
+    backlog, ``recorder_lag_*``, not the data path's lag (that is the vehicle's, ``lag_*``)."""
     from clm_core.io.timebase import lag_figures
+    from clm_ros.bag_tools import read_topics
 
-    with BagReader(bag) as reader:
-        recorded = [t for t in PAIR_TOPICS if f"{ns}/{t}" in reader.topics]
-        stamps: dict[str, list[int]] = {t: [] for t in recorded}
-        recv: list[int] = []
-        for bm in reader.messages([f"{ns}/{t}" for t in recorded]):
-            topic = bm.topic.rsplit("/", 1)[1]
-            st = _decode(topic, bm.data).stamp_ns
-            stamps[topic].append(st)
-            if topic == "wheel_rail_response":
-                recv.append(bm.log_ns - st)
+    got = read_topics(bag, [f"{ns}/{t}" for t in PAIR_TOPICS])
+    recorded = [t for t in PAIR_TOPICS if f"{ns}/{t}" in got]
+    stamps = {t: [m.stamp_ns for _, m in got[f"{ns}/{t}"]] for t in recorded}
+    recv = [log - m.stamp_ns for log, m in got.get(f"{ns}/wheel_rail_response", [])]
     answers = [stamps[t] for t in recorded if t != "wheel_loads"]
     n_in = len(stamps.get("wheel_loads", []))
     ok = n_in > 0 and bool(answers) and all(a == stamps["wheel_loads"] for a in answers)
@@ -322,26 +309,22 @@ def _bag_figures(bag: Path, ns: str) -> dict[str, Any]:
 
 def _offline_check(bag: Path, ns: str, run: RunSettings) -> dict[str, Any]:
     """Replay pair ``ns``'s recorded wheel loads offline; compare its recorded answers with the replay's."""
-    from clm_core.io.bags import BagReader
     from clm_core.online import OnlineTrackModel
+    from clm_ros.bag_tools import read_topics
     from clm_ros.replay import replay_bag
 
     m = OnlineTrackModel.from_settings(run.track_parameters())  # what the pair's track node was given
     with tempfile.TemporaryDirectory(prefix="clm_fleet_") as tmp:
         stats = replay_bag(bag, Path(tmp) / "offline", m, topic=f"{ns}/wheel_loads", out_prefix=ns)
 
-        with BagReader(bag) as reader:  # the answers recorded live (the recorded topics)
-            topics = [f"{ns}/{t}" for t in ("sleeper_response", "wheel_rail_response") if f"{ns}/{t}" in reader.topics]
+        topics = [f"{ns}/sleeper_response", f"{ns}/wheel_rail_response"]
 
-        def answers(path: Path) -> dict[tuple[str, int], Any]:
-            got: dict[tuple[str, int], Any] = {}
-            with BagReader(path) as reader:
-                for bm in reader.messages(topics):
-                    m = _decode(bm.topic.rsplit("/", 1)[1], bm.data)
-                    got[(bm.topic, m.stamp_ns)] = m
-            return got
+        def answers(path: Path, only: Any = None) -> dict[tuple[str, int], Any]:
+            return {(topic, msg.stamp_ns): msg for topic, msgs in read_topics(path, only or topics).items()
+                    for _, msg in msgs}
 
-        live, offline = answers(bag), answers(Path(tmp) / "offline")
+        live = answers(bag)  # the answer topics recorded live
+        offline = answers(Path(tmp) / "offline", sorted({topic for topic, _ in live}) or topics)
     diff = 0.0
     fields_equal = live.keys() == offline.keys()
     for key, a in live.items():
