@@ -3,7 +3,11 @@
 The demo is a one-train fleet. :func:`run_trains` runs any number of trains
 (a track node and a vehicle node each, or one :mod:`clm_ros.fleet_pair`
 process), each in its namespace (the demo's in the root namespace), and
-records their topics to one bag; :mod:`clm_ros.launcher` and
+records their topics to one bag (a pair process given ``own_bag`` records its
+own topics itself, :class:`clm_ros.fleet_pair.PairRecorder`; its latched
+``recorder_status`` then stands for the recorder's match and counts); the
+trains' data writers keep a whole train for a recorder that falls behind
+(:meth:`TrainSpec.history`); :mod:`clm_ros.launcher` and
 :mod:`clm_ros.fleet` are front ends that say what to run and turn the
 :class:`RunResult` into their ``summary.json``.
 
