@@ -42,7 +42,8 @@ def test_fleet_two_pairs_correct_and_summarised(tmp_path: Path, ros_domain_id: i
 
     out = tmp_path / "fleet"
     s = run_fleet(out, RunSettings(duration=DURATION, domain_id=ros_domain_id), trains=2, first_index=3,
-                  hold_domain=False, timeout=240, progress=False)
+                  hold_domain=False, timeout=240, progress=False, record_sleepers=True)
+    assert s["recorded_topics"] == ["wheel_loads", "wheel_rail_response", "sleeper_response"]
     assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(s))
     seed = settings.SEED.default
     assert set(s["trains"]) == {"train_3", "train_4"} and s["seeds"] == [seed + 3, seed + 4]
@@ -57,7 +58,8 @@ def test_fleet_two_pairs_correct_and_summarised(tmp_path: Path, ros_domain_id: i
     for name, t in s["trains"].items():
         assert t["namespace"] == f"/{name}"
         # in = out, once each, in order (stamps), by the recorder and by the vehicle
-        assert t["messages_in"] == t["messages_out"] == t["wheel_rail_responses"] == N_MSG and t["in_equals_out"]
+        assert t["messages_in"] == t["messages_out"] == t["wheel_rail_responses"] == t["sleeper_responses"] == N_MSG
+        assert t["in_equals_out"]
         v = t["vehicle_node"]
         assert v["published"] == v["answered"] == t["feedback_total"] == N_MSG
         assert t["feedback_used"] == v["feedback_used"] <= N_MSG
@@ -66,6 +68,8 @@ def test_fleet_two_pairs_correct_and_summarised(tmp_path: Path, ros_domain_id: i
         assert t["offline_equal"] and t["offline_max_abs_diff"] == 0.0
         assert t["offline_accepted"] == N_MSG and t["offline_compared"] == 2 * N_MSG
         assert 0 < t["lag_median_s"] <= t["lag_p99_s"] <= t["lag_max_s"] < 60
+        assert t["lag_median_s"] == t["vehicle_lag_median_s"]  # the data path's lag, as the vehicle measured it
+        assert 0 < t["recorder_lag_median_s"] <= t["recorder_lag_p99_s"] <= t["recorder_lag_max_s"] < 60
         assert 0 < t["vehicle_lag_median_s"] <= t["vehicle_lag_p99_s"] <= t["vehicle_lag_max_s"] < 60
         assert t["exit_codes"] == {"vehicle_node": 0, "track_node": 0} and t["correct"]
         assert set(t["cpu_us_per_message"]) == {"track_node", "vehicle_node"}
@@ -86,12 +90,21 @@ def test_fleet_pair_process_same_answers(tmp_path: Path, ros_domain_id: int) -> 
     from clm_ros.fleet import run_fleet
     from clm_ros.run_settings import RunSettings
 
+    from clm_core.io.bags import BagReader
+
     s = run_fleet(tmp_path / "f", RunSettings(duration=DURATION, domain_id=ros_domain_id), trains=1,
                   hold_domain=False, timeout=240, progress=False, pair_process=True)
     t = s["trains"]["train_0"]
     assert s["pair_process"] and s["exit_codes"] == {"/train_0/pair": 0} and t["exit_codes"] == {"pair": 0}
     assert t["messages_in"] == t["messages_out"] == t["feedback_total"] == N_MSG and t["in_equals_out"]
-    assert t["offline_equal"] and t["offline_compared"] == 2 * N_MSG and t["correct"]
+    # by default the bag holds the wheel loads and the answers that close the loop (not the sleeper responses),
+    # recorded in the pair's own process to a bag of its own (no transport, no supervisor's recorder to send to)
+    assert s["recorded_topics"] == ["wheel_loads", "wheel_rail_response"] and "sleeper_responses" not in t
+    assert s["recorded_in"] == "pair processes" and s["train_bags"] == {"train_0": str(tmp_path / "f" / "train_0_bag")}
+    with BagReader(tmp_path / "f" / "train_0_bag") as reader:
+        assert {k: i.message_count for k, i in reader.topics.items()} == {
+            "/train_0/wheel_loads": N_MSG, "/train_0/wheel_rail_response": N_MSG}
+    assert t["offline_equal"] and t["offline_compared"] == N_MSG and t["correct"]
     assert set(t["cpu_us_per_message"]) == {"pair"}
 
 
@@ -150,8 +163,49 @@ def test_fleet_node_killed_keeps_the_others_bag_and_summary(tmp_path: Path, ros_
     # the bag survives, with the healthy train complete and what the dead one recorded until it died
     with BagReader(out / "fleet_bag") as reader:
         counts = {t: info.message_count for t, info in reader.topics.items()}
-    assert counts["/train_0/wheel_loads"] == counts["/train_0/sleeper_response"] == n_msg
-    assert 0 < counts["/train_1/sleeper_response"] < n_msg
+    assert counts["/train_0/wheel_loads"] == counts["/train_0/wheel_rail_response"] == n_msg
+    assert 0 < counts["/train_1/wheel_rail_response"] < n_msg
+
+
+def test_fleet_recorder_far_behind_loses_nothing(tmp_path: Path, ros_domain_id: int, ros_env: dict[str, str]) -> None:
+    """Issue 21: a recorder starved for longer than the nodes' default writer history (5000 messages, 5 s at 1 kHz)
+    still records every message of the train: the fleet's writers keep the whole train for it (a 5-train fleet
+    lost the first of 5001 wheel loads and its answers, and its offline replay differed). The supervisor (recorder
+    and all) is stopped with SIGSTOP for 6.5 s from the start of a 6-s train."""
+    from clm_core.io.bags import BagReader
+
+    out = tmp_path / "fleet"
+    duration = 6.0
+    n_msg = round(duration * 1000) + 1
+    # two processes per pair: the supervisor records (with --pair-process each pair records in its own process)
+    proc = subprocess.Popen([*CLM, "fleet", "--trains", "1", "--duration", str(duration),
+                             "--domain", str(ros_domain_id), "--join-domain", "--out", str(out)], env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        log = out / "train_0_vehicle_node.log"
+        deadline = time.monotonic() + 240
+        while not (log.exists() and "train 1 starts" in log.read_text()):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGSTOP)
+        try:
+            time.sleep(6.5)
+        finally:
+            proc.send_signal(signal.SIGCONT)
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, (stdout, stderr)
+    s = json.loads((out / "summary.json").read_text())
+    t = s["trains"]["train_0"]
+    assert t["messages_in"] == t["messages_out"] == t["wheel_rail_responses"] == n_msg and t["offline_equal"]
+    # the recorder was seconds behind (its lag says so), the data path was not stopped
+    assert t["recorder_lag_max_s"] > 1.0 and t["lag_median_s"] == t["vehicle_lag_median_s"]
+    with BagReader(out / "fleet_bag") as reader:
+        counts = {k: info.message_count for k, info in reader.topics.items()}
+    assert all(counts[f"/train_0/{k}"] == n_msg for k in ("wheel_loads", "wheel_rail_response"))
 
 
 @pytest.mark.parametrize(("args", "message"), [

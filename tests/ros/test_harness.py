@@ -7,6 +7,8 @@
   wait, saying what its vehicle last said;
 - the trains of a fleet start together: the summary says how many ran at
   once (and a schedule, ``stagger``, spreads the starts);
+- a pair process under SCHED_FIFO does not busy-wait (its CPU while it waits for the start and idle after
+  its train) and leaves SCHED_FIFO for its shut-down;
 - the overlap count of the summary (``max_running_at_once``) from the trains'
   start and end times.
 """
@@ -90,3 +92,85 @@ def test_concurrency_is_the_largest_overlap() -> None:
     assert c["max_running_at_once"] == 3 and c["start_spread_s"] == pytest.approx(5.5)
     assert _concurrency([train(0, 1), train(1, 2)])["max_running_at_once"] == 1  # one ends as the next starts
     assert _concurrency([]) == {"max_running_at_once": 0, "start_spread_s": None}
+
+
+#: Most CPU a waiting node process may use (fraction of one core over the window; measured ~3 % waiting for the
+#: start signal and ~1 % idle after the train on the 2-core machine): a busy wait takes 90-100 %.
+WAITING_CPU = 0.3
+
+
+def test_nothing_busy_waits_under_sched_fifo(ros_domain_id: int, ros_env: dict[str, str], tmp_path: Path,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 21: a fleet pair process under SCHED_FIFO (realtime_priority 10) waits without spinning: its CPU
+    over 3 s while it waits for the start signal and over 3 s idle after its train stays a small fraction of a
+    core; on SIGINT its threads go back to normal scheduling before the shut-down (nothing of the shut-down runs
+    real-time) and it exits 0. Pairs of a fleet once stayed at ~92 % CPU each after SIGINT, load 124."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import rclpy
+    from clm_ros.latched import LATCHED_QOS, VEHICLE_STATUS, status_values
+    from clm_ros.processes import proc_cpu_s, ros_args
+    from clm_ros.readiness import START_AT
+    from clm_ros.realtime import thread_scheduling
+    from clm_ros.run_settings import RunSettings
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import Int64
+
+    run = RunSettings(duration=0.5, realtime_priority=10, domain_id=ros_domain_id)
+    params = {**run.track_parameters(), **run.vehicle_parameters(wait_for_subscribers=1), "start_signal": True}
+    log = tmp_path / "pair.log"
+    with open(log, "w") as f:
+        p = subprocess.Popen([sys.executable, "-m", "clm_ros.fleet_pair", *ros_args(params), "-r", "__ns:=/t"],
+                             env=ros_env, stdout=f, stderr=subprocess.STDOUT)
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    node = rclpy.create_node("fifo_watch", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    status: dict[str, str] = {}
+    node.create_subscription(DiagnosticArray, f"/t/{VEHICLE_STATUS}", lambda m: status.update(status_values(m)),
+                             LATCHED_QOS)
+    start = node.create_publisher(Int64, f"/t/{START_AT}", LATCHED_QOS)
+
+    def spin_until(done: object, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while not done() and time.monotonic() < deadline:  # type: ignore[operator]
+            assert p.poll() is None, log.read_text()
+            ex.spin_once(timeout_sec=0.05)
+
+    def cpu_fraction(seconds: float) -> float:
+        c0, t0 = proc_cpu_s(p.pid), time.monotonic()
+        spin_until(lambda: False, seconds)
+        c1, t1 = proc_cpu_s(p.pid), time.monotonic()
+        assert c0 is not None and c1 is not None
+        return (c1 - c0) / (t1 - t0)
+
+    try:
+        spin_until(lambda: "waiting for the start signal" in status.get("state", ""), 240)
+        assert "waiting for the start signal" in status.get("state", ""), (status, log.read_text())
+        fifo = any(policy == 1 for policy, _ in thread_scheduling(p.pid).values())
+        if not fifo:
+            assert "SCHED_FIFO 10 refused" in log.read_text()  # no permission here: the waits are checked all the same
+        waiting = cpu_fraction(3.0)
+        assert waiting < WAITING_CPU, f"{100 * waiting:.0f} % CPU while waiting for the start signal"
+        start.publish(Int64(data=time.time_ns()))
+        spin_until(lambda: "final_train" in status, 120)
+        assert "final_train" in status, (status, log.read_text())
+        idle = cpu_fraction(3.0)
+        assert idle < WAITING_CPU, f"{100 * idle:.0f} % CPU idle after the train"
+        p.send_signal(signal.SIGINT)
+        assert p.wait(timeout=60) == 0, log.read_text()
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    if fifo:
+        assert "scheduling: back to normal for the shut-down" in log.read_text(), log.read_text()

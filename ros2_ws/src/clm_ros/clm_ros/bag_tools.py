@@ -214,6 +214,33 @@ class BagRecorder:
         self.writer.abort()
 
 
+#: The clm data types decoded by clm_core.io.messages (numpy, no rclpy) when a bag is read back: type -> decoder.
+DECODERS = {"clm_msgs/msg/WheelLoads": "decode_wheel_loads",
+            "clm_msgs/msg/SleeperResponse": "decode_sleeper_response",
+            "clm_msgs/msg/WheelRailResponse": "decode_wheel_rail_response"}
+
+
+def read_topics(bag: str | Path, topics: Sequence[str] | None = None) -> dict[str, list[tuple[int, Any]]]:
+    """Every message of ``topics`` (default all; those not in the bag are left out) of a bag, decoded, with its
+    log time: ``{topic: [(log_ns, message), ...]}`` in log-time order.
+
+    The one reader of recorded runs (``clm demo``'s figures and plots, ``clm fleet``'s in = out, recorder lag and
+    offline check): the clm data topics are decoded by :mod:`clm_core.io.messages` (``stamp_ns`` and numpy
+    arrays), every other type by the bag's type store (rosbags). A damaged bag raises
+    :class:`clm_core.io.errors.BagError`.
+    """
+    from clm_core.io import messages
+
+    with BagReader(bag) as reader:
+        wanted = [t for t in (reader.topics if topics is None else topics) if t in reader.topics]
+        out: dict[str, list[tuple[int, Any]]] = {t: [] for t in wanted}
+        decode = {t: getattr(messages, DECODERS[reader.topics[t].msgtype]) if reader.topics[t].msgtype in DECODERS
+                  else (lambda data, mt=reader.topics[t].msgtype: reader.deserialize(data, mt)) for t in wanted}
+        for bm in reader.messages(wanted):
+            out[bm.topic].append((bm.log_ns, decode[bm.topic](bm.data)))
+    return out
+
+
 def take_raw(sub: Any) -> Iterator[tuple[bytes, int | None]]:
     """Take every message waiting in raw subscription ``sub`` (one no executor spins).
 

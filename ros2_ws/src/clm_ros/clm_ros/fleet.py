@@ -33,12 +33,16 @@ and recorder:
 
 ``DIR/summary.json``: per train (``trains.train_i``) the messages in and out,
 ``feedback_used``/``feedback_total``, the lag median/p99/max from the first
-message (recorder: reception of ``sleeper_response`` minus the stamp of its
-wheel-load message, as the demo; ``vehicle_lag_*``: the vehicle's own
-reception of ``wheel_rail_response`` minus the due time), the offline check,
-each node's CPU per message, its ``status`` (``ok``, ``failed``, ``timeout``,
-``wrong``) and ``reason``; ``overall``: the worst of each figure, whether
-every pair is correct, how many trains ran at once (``max_running_at_once``,
+message (``lag_*``, the data path's: the vehicle's reception of each
+``wheel_rail_response`` minus the due time of its wheel-load message, as the
+vehicle measures it, also ``vehicle_lag_*``), the recorder's lag behind the
+data (``recorder_lag_*``: its reception of ``sleeper_response`` minus the
+stamp; a recorder that falls behind under load loses nothing, issue 21: the
+trains' writers keep the whole train for it, :meth:`TrainSpec.history`, and
+the run waits for the bag to be complete), the offline check, each node's
+CPU per message, its ``status`` (``ok``, ``failed``, ``timeout``, ``wrong``)
+and ``reason``; ``overall``: the worst of each figure, whether every pair is
+correct, how many trains ran at once (``max_running_at_once``,
 ``started_together``, ``start_spread_s``). The summary is written and the bag
 kept whatever happened; then a train that is not ``ok`` makes the run an
 error. Without the recorder (``record=False``, the capacity benchmark) the
@@ -51,6 +55,7 @@ Users with a full ROS install get the same graph from
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -72,6 +77,13 @@ PAIR_TOPICS = {
     "sleeper_response": "clm_msgs/msg/SleeperResponse",
     "wheel_rail_response": "clm_msgs/msg/WheelRailResponse",
 }
+#: What the fleet records of each pair by default: its wheel loads (the input of the offline check) and the answers
+#: that close its loop. Not the 61-sleeper ``sleeper_response`` (~3 KB, a third of the messages) unless asked
+#: (``record_sleepers``): every recorded topic costs the pair a send per message to one more reader and the
+#: recorder a take and a write (docs/fleet.md: capacity).
+RECORDED = ("wheel_loads", "wheel_rail_response")
+#: Bag of pair ``name`` when each pair process records its own topics (``pair_process``), in the output directory.
+PAIR_BAG = "{}_bag"
 #: DDS discovery ranges (``ROS_AUTOMATIC_DISCOVERY_RANGE``): LOCALHOST keeps the graph on this machine.
 DISCOVERY_RANGES = ("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT")
 
@@ -118,6 +130,7 @@ def run_fleet(
     progress: bool = True,
     pair_process: bool = False,
     stagger: float = 0.0,
+    record_sleepers: bool = False,
 ) -> dict[str, Any]:
     """Run ``trains`` vehicle + track node pairs; return the summary (also ``out_dir/summary.json``).
 
@@ -133,7 +146,9 @@ def run_fleet(
     ``pair_process``: each pair's two nodes in one process on one executor
     (:mod:`clm_ros.fleet_pair`) instead of two processes. The trains start
     together once all are ready; ``stagger`` [s]: train ``i`` starts
-    ``i * stagger`` after the first (a schedule).
+    ``i * stagger`` after the first (a schedule). The bag holds each pair's
+    :data:`RECORDED` topics, and its ``sleeper_response`` with
+    ``record_sleepers``.
 
     Raises
     ------
@@ -154,7 +169,8 @@ def run_fleet(
         raise ClmRosError(f"{bag}: exists; choose another output directory or pass overwrite (--overwrite)")
     env = fleet_env(run.domain_id, discovery_range, static_peers)  # checks the range before anything starts
     kw: dict[str, Any] = dict(trains=trains, first_index=first_index, record=record, verify=verify, timeout=timeout,
-                              progress=progress, pair_process=pair_process, stagger=stagger)
+                              progress=progress, pair_process=pair_process, stagger=stagger,
+                              record_sleepers=record_sleepers)
     if not hold_domain:
         return _run_fleet(run.domain_id, env, Path(out_dir), run, **kw)
     with hold_domain_id(run.domain_id) as dom:
@@ -163,15 +179,22 @@ def run_fleet(
 
 def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, trains: int, first_index: int,
                record: bool, verify: bool, timeout: float, progress: bool, pair_process: bool,
-               stagger: float) -> dict[str, Any]:
+               stagger: float, record_sleepers: bool) -> dict[str, Any]:
     from clm_core.progress import Progress
 
     track_params = run.track_parameters()
+    recorded = (*RECORDED, "sleeper_response") if record_sleepers else RECORDED
+    own = record and pair_process  # each pair process records its own topics (clm_ros.fleet_pair)
     specs = [TrainSpec(ns.strip("/"), ns, track_params,
                        run.vehicle_parameters(seed_offset=first_index + i, wait_for_subscribers=2 if record else 1),
-                       pair_process=pair_process, start_offset=i * stagger)
+                       pair_process=pair_process, start_offset=i * stagger, messages=run.messages,
+                       own_bag=out / PAIR_BAG.format(ns.strip("/")) if own else None,
+                       own_topics=recorded if own else ())
              for i, ns in enumerate(namespaces(trains, first_index))]
-    topics = {f"{s.ns}/{t}": m for s in specs for t, m in PAIR_TOPICS.items()}
+    for s in specs:
+        if s.own_bag is not None and s.own_bag.exists():
+            shutil.rmtree(s.own_bag)
+    topics = {} if own else {f"{s.ns}/{t}": PAIR_TOPICS[t] for s in specs for t in recorded}
     bar = Progress(run.messages * trains if progress else None, "clm fleet", unit="msg")
     try:
         r = run_trains(out, specs, domain_id=dom, env=env,
@@ -180,19 +203,23 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
     finally:
         bar.close()
     bag = out / "fleet_bag"
-    n_all = sum(r.message_counts.get(f"{s.ns}/wheel_loads", 0) for s in specs)
+    counts = dict(r.message_counts)
+    for s in specs:
+        counts.update(_bag_counts(s.own_bag) if s.own_bag is not None else {})
+    n_all = sum(counts.get(f"{s.ns}/wheel_loads", 0) for s in specs)
     summary: dict[str, Any] = {
-        "recorder_cpu_us_per_message": 1e6 * r.recorder_cpu_s / n_all if record and n_all else None,
-        "message_counts": r.message_counts,
+        "recorder_cpu_us_per_message": 1e6 * r.recorder_cpu_s / n_all if record and n_all and not own else None,
+        "message_counts": counts,
     }
     per_train: dict[str, Any] = {}
     for t in r.trains:
         f = _train_figures(t, r.exit_codes)
+        data_bag = t.spec.own_bag or bag
         try:
             if record:
-                f.update(_bag_figures(bag, t.spec.ns))
+                f.update(_bag_figures(data_bag, t.spec.ns))
             if verify:
-                f.update(_offline_check(bag, t.spec.ns, run))
+                f.update(_offline_check(data_bag, t.spec.ns, run))
         except Exception as exc:  # a train that recorded nothing (it never started): say so, keep going
             f["check_error"] = str(exc)
         f["correct"] = bool(t.state == "done" and f["in_equals_out"] and f.get("offline_equal", True)
@@ -213,7 +240,10 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
         "n_trains": trains, "first_index": first_index, **run.summary(),
         "seeds": [run.seed + first_index + i for i in range(trains)],
         "bag": str(bag) if record else None, "ros_domain_id": dom,
+        "train_bags": {s.name: str(s.own_bag) for s in specs if s.own_bag is not None},
+        "recorded_in": "pair processes" if own else "supervisor" if record else None,
         "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"], "pair_process": pair_process, "stagger_s": stagger,
+        "recorded_topics": list(recorded) if record else [],
     })
     write_json(out / "summary.json", summary)
     bad = [f"{k}: {t['status']}: {t['reason']}" for k, t in per_train.items() if not t["correct"]]
@@ -223,11 +253,15 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
     return summary
 
 
-def _decode(topic: str, data: bytes) -> Any:
-    """The numpy CDR decoding (clm_core.io.messages) of a message of a pair's data topic ``topic``."""
-    from clm_core.io import messages
+def _bag_counts(bag: Path) -> dict[str, int]:
+    """Messages per topic of a bag (its metadata); empty when there is no readable bag (a pair that died)."""
+    from clm_core.io.bags import BagReader
 
-    return getattr(messages, f"decode_{topic}")(data)
+    try:
+        with BagReader(bag) as reader:
+            return {t: info.message_count for t, info in reader.topics.items()}
+    except Exception:
+        return {}
 
 
 def _train_figures(t: Train, codes: dict[str, int]) -> dict[str, Any]:
@@ -250,48 +284,47 @@ def _train_figures(t: Train, codes: dict[str, int]) -> dict[str, Any]:
 
 
 def _bag_figures(bag: Path, ns: str) -> dict[str, Any]:
-    """In = out of pair ``ns`` as recorded (once each, in order) and its lags from the recorder's log times."""
-    from clm_core.io.bags import BagReader
+    """In = out of pair ``ns`` as recorded (once each, in order) and the recorder's lag behind the data (its log
+    time, the reception by its middleware, of each ``wheel_rail_response`` minus the stamp): the recorder's
+    backlog, ``recorder_lag_*``, not the data path's lag (that is the vehicle's, ``lag_*``)."""
     from clm_core.io.timebase import lag_figures
+    from clm_ros.bag_tools import read_topics
 
-    stamps: dict[str, list[int]] = {t: [] for t in PAIR_TOPICS}
-    recv: list[int] = []
-    with BagReader(bag) as reader:
-        for bm in reader.messages([f"{ns}/{t}" for t in PAIR_TOPICS]):
-            topic = bm.topic.rsplit("/", 1)[1]
-            st = _decode(topic, bm.data).stamp_ns
-            stamps[topic].append(st)
-            if topic == "sleeper_response":
-                recv.append(bm.log_ns - st)
-    n_in, n_out, n_w = (len(stamps[t]) for t in PAIR_TOPICS)
-    ok = n_in > 0 and stamps["wheel_loads"] == stamps["sleeper_response"] == stamps["wheel_rail_response"]
+    got = read_topics(bag, [f"{ns}/{t}" for t in PAIR_TOPICS])
+    recorded = [t for t in PAIR_TOPICS if f"{ns}/{t}" in got]
+    stamps = {t: [m.stamp_ns for _, m in got[f"{ns}/{t}"]] for t in recorded}
+    recv = [log - m.stamp_ns for log, m in got.get(f"{ns}/wheel_rail_response", [])]
+    answers = [stamps[t] for t in recorded if t != "wheel_loads"]
+    n_in = len(stamps.get("wheel_loads", []))
+    ok = n_in > 0 and bool(answers) and all(a == stamps["wheel_loads"] for a in answers)
     return {
-        "messages_in": n_in, "messages_out": n_out, "wheel_rail_responses": n_w,
+        "messages_in": n_in, "messages_out": len(stamps.get("wheel_rail_response", [])),
+        "wheel_rail_responses": len(stamps.get("wheel_rail_response", [])),
+        **({"sleeper_responses": len(stamps["sleeper_response"])} if "sleeper_response" in stamps else {}),
+        "recorded_topics": recorded,
         "in_equals_out": bool(ok),
-        **lag_figures(recv).named(),
+        **lag_figures(recv).named("recorder_lag"),
     }
 
 
 def _offline_check(bag: Path, ns: str, run: RunSettings) -> dict[str, Any]:
     """Replay pair ``ns``'s recorded wheel loads offline; compare its recorded answers with the replay's."""
-    from clm_core.io.bags import BagReader
     from clm_core.online import OnlineTrackModel
+    from clm_ros.bag_tools import read_topics
     from clm_ros.replay import replay_bag
 
     m = OnlineTrackModel.from_settings(run.track_parameters())  # what the pair's track node was given
     with tempfile.TemporaryDirectory(prefix="clm_fleet_") as tmp:
         stats = replay_bag(bag, Path(tmp) / "offline", m, topic=f"{ns}/wheel_loads", out_prefix=ns)
 
-        def answers(path: Path) -> dict[tuple[str, int], Any]:
-            got: dict[tuple[str, int], Any] = {}
-            with BagReader(path) as reader:
-                topics = [f"{ns}/sleeper_response", f"{ns}/wheel_rail_response"]
-                for bm in reader.messages(topics):
-                    m = _decode(bm.topic.rsplit("/", 1)[1], bm.data)
-                    got[(bm.topic, m.stamp_ns)] = m
-            return got
+        topics = [f"{ns}/sleeper_response", f"{ns}/wheel_rail_response"]
 
-        live, offline = answers(bag), answers(Path(tmp) / "offline")
+        def answers(path: Path, only: Any = None) -> dict[tuple[str, int], Any]:
+            return {(topic, msg.stamp_ns): msg for topic, msgs in read_topics(path, only or topics).items()
+                    for _, msg in msgs}
+
+        live = answers(bag)  # the answer topics recorded live
+        offline = answers(Path(tmp) / "offline", sorted({topic for topic, _ in live}) or topics)
     diff = 0.0
     fields_equal = live.keys() == offline.keys()
     for key, a in live.items():
@@ -327,5 +360,6 @@ def _overall(per_train: dict[str, Any]) -> dict[str, Any]:
         "messages_out": sum(t["messages_out"] for t in per_train.values()),
         "worst_lag_median_s": worst("lag_median_s"), "worst_lag_p99_s": worst("lag_p99_s"),
         "worst_lag_max_s": worst("lag_max_s"), "worst_vehicle_lag_p99_s": worst("vehicle_lag_p99_s"),
+        "worst_recorder_lag_p99_s": worst("recorder_lag_p99_s"),
         "lowest_feedback_fraction": min(used) if used else None,
     }

@@ -3,7 +3,11 @@
 The demo is a one-train fleet. :func:`run_trains` runs any number of trains
 (a track node and a vehicle node each, or one :mod:`clm_ros.fleet_pair`
 process), each in its namespace (the demo's in the root namespace), and
-records their topics to one bag; :mod:`clm_ros.launcher` and
+records their topics to one bag (a pair process given ``own_bag`` records its
+own topics itself, :class:`clm_ros.fleet_pair.PairRecorder`; its latched
+``recorder_status`` then stands for the recorder's match and counts); the
+trains' data writers keep a whole train for a recorder that falls behind
+(:meth:`TrainSpec.history`); :mod:`clm_ros.launcher` and
 :mod:`clm_ros.fleet` are front ends that say what to run and turn the
 :class:`RunResult` into their ``summary.json``.
 
@@ -62,6 +66,14 @@ STOP_TIMEOUT = 45.0
 SUPERVISOR_TRANSPORTS = "UDPv4"
 #: Terminal train states.
 ENDED = ("done", "failed", "timeout")
+#: The data topics of a train (relative to its namespace): what its writers must keep for a recorder.
+DATA_TOPICS = ("wheel_loads", "sleeper_response", "wheel_rail_response")
+#: Messages a train's writers keep beyond its own messages while a recorder has not acknowledged them.
+HISTORY_MARGIN = 1000
+#: Most messages a train's writers keep for a recorder that falls behind (60 s at 1 kHz; ~3 KB per 61-sleeper
+#: answer, held only while unacknowledged): a longer train is recorded completely only if its recorder is never
+#: that far behind (the summary then says what is missing, the offline check fails).
+MAX_HISTORY = 60000
 
 
 @dataclass
@@ -77,6 +89,23 @@ class TrainSpec:
     vehicle_params: Mapping[str, Any]
     pair_process: bool = False
     start_offset: float = 0.0
+    messages: int = 0
+    #: With ``pair_process``: the bag its process records its own topics ``own_topics`` to (clm_ros.fleet_pair).
+    own_bag: Path | None = None
+    own_topics: tuple[str, ...] = ()
+
+    def history(self) -> dict[str, int]:
+        """The QoS override parameters that make its data writers keep a whole train for a recorder.
+
+        A reliable keep-last writer drops a sample its history overwrites even when a reader has not acknowledged
+        it: with the nodes' default depth of 5000, a recorder more than 5 s behind lost the first of a train's 5001
+        wheel loads and its answers (issue 21: a 5-train fleet's offline replay then differed). With the depth at
+        the train's messages (+ :data:`HISTORY_MARGIN`, at most :data:`MAX_HISTORY`) nothing of a train is
+        overwritten before the recorder has it; a volatile writer frees what every reader has acknowledged, so
+        the memory is held only while the recorder lags.
+        """
+        depth = min(self.messages + HISTORY_MARGIN, MAX_HISTORY)
+        return {f"qos_overrides.{self.ns}/{t}.publisher.depth": depth for t in DATA_TOPICS}
 
     def topic(self, t: str) -> str:
         """Full name of this train's topic ``t``."""
@@ -91,6 +120,7 @@ class Train:
     procs: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     status: dict[str, str] = field(default_factory=dict)
     track: dict[str, str] = field(default_factory=dict)  # the latest latched status of its track node
+    recorder: dict[str, str] = field(default_factory=dict)  # the latest latched status of its own recorder
     state: str = "starting"
     reason: str = ""
     published_live: int = 0  # wheel-load messages its vehicle last reported on /diagnostics (no recorder)
@@ -166,7 +196,7 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
     from std_msgs.msg import Int64
 
     from clm_ros.bag_tools import BagRecorder
-    from clm_ros.latched import LATCHED_QOS, TRACK_STATUS, VEHICLE_STATUS, status_values
+    from clm_ros.latched import LATCHED_QOS, RECORDER_STATUS, TRACK_STATUS, VEHICLE_STATUS, status_values
     from clm_ros.readiness import START_AT
 
     ready_timeout = timeout if ready_timeout is None else ready_timeout
@@ -198,6 +228,11 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
         logs[stem] = open(out / f"{stem}.log", "w")
         module = "fleet_pair" if kind == "pair" else kind
         ns = ["-r", f"__ns:={t.spec.ns}"] if t.spec.ns else []
+        if (topics is not None or t.spec.own_bag) and t.spec.messages:  # its writers keep the train for a recorder
+            params = {**params, **t.spec.history()}
+        if t.spec.own_bag is not None:
+            params = {**params, "record_bag": str(t.spec.own_bag), "record_topics": ",".join(t.spec.own_topics),
+                      "storage": storage}
         t.procs[kind] = subprocess.Popen([sys.executable, "-m", f"clm_ros.{module}", *ros_args(params), *ns],
                                          env=env, stdout=logs[stem], stderr=subprocess.STDOUT)
 
@@ -233,6 +268,12 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
 
             watcher.create_subscription(DiagnosticArray, t.spec.topic(VEHICLE_STATUS), on_status, LATCHED_QOS)
             watcher.create_subscription(DiagnosticArray, t.spec.topic(TRACK_STATUS), on_track, LATCHED_QOS)
+            if t.spec.own_bag is not None:
+                def on_recorder(msg: Any, t: Train = t) -> None:
+                    t.recorder = status_values(msg)
+
+                watcher.create_subscription(DiagnosticArray, t.spec.topic(RECORDER_STATUS), on_recorder,
+                                            LATCHED_QOS)
             starters[t.spec.name] = watcher.create_publisher(Int64, t.spec.topic(START_AT), LATCHED_QOS)
         if topics is None:  # progress from the vehicles' periodic diagnostics (best effort: only a progress bar)
             by_ns = {t.spec.ns: t for t in trains}
@@ -258,6 +299,8 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
                     rec.poll()
 
         def published(t: Train) -> int:
+            if t.spec.own_bag is not None:
+                return int(t.recorder.get("wheel_loads", 0) or 0)
             if rec is not None:
                 return int(rec.counts.get(t.spec.topic("wheel_loads"), 0))
             return t.published_live or int(t.status.get("train.published", 0) or 0)
@@ -272,9 +315,12 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             spin_for(0.02)
             check_processes()
             for t in trains:
-                answers = [t.spec.topic(x) for x in ("wheel_loads", "sleeper_response", "wheel_rail_response")]
+                answers = [t.spec.topic(x) for x in DATA_TOPICS if rec is not None and t.spec.topic(x) in rec.topics]
+                own = t.spec.own_bag is not None
                 if t.state == "starting" and "waiting for the start signal" in t.status.get("state", "") and (
-                        rec is None or (rec.matched(answers) and _answers_matched(watcher, t))):
+                        not answers or rec is None or rec.matched(answers)) and (
+                        not own or t.recorder.get("matched") == "True") and (
+                        not (answers or own) or _answers_matched(watcher, t)):
                     t.state = "ready"
             if all(t.state != "starting" for t in trains):
                 break
@@ -314,12 +360,13 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
                 for t in trains:
                     said = t.status.get("state") or "no status from its vehicle"
                     t.end("timeout", f"not done {timeout:g} s after its start (vehicle: {said})")
-        if rec is not None:  # every finished train complete in the bag: the recorded data itself says so
+        if rec is not None or any(t.spec.own_bag for t in trains):  # every finished train complete in its bag
             t1 = time.monotonic()
             while time.monotonic() - t1 < ANSWERS_TIMEOUT and not all(_recorded(rec, t) for t in trains
                                                                          if t.state == "done"):
                 spin_for(0.05)
                 check_processes()
+        if rec is not None:
             if "/diagnostics" in rec.counts:  # the nodes' last counters in the bag: two more /diagnostics of each
                 n_diag, t2 = rec.counts["/diagnostics"], time.monotonic()
                 while rec.counts["/diagnostics"] < n_diag + 4 * len(trains) and time.monotonic() - t2 < 5:
@@ -365,10 +412,13 @@ def _answers_matched(node: Any, t: Train) -> bool:
 def _recorded(rec: Any, t: Train) -> bool:
     """Whether the bag holds every wheel-load message train ``t``'s vehicle published (its final figures) and an
     answer to each (a recorder that falls behind under load catches up before the bag is closed)."""
-    c = rec.counts
+    c = rec.counts if rec is not None and t.spec.own_bag is None else {
+        t.spec.topic(k): int(v) for k, v in t.recorder.items() if k in DATA_TOPICS}
     n = int(t.final.get("train.published", 0) or 0)
-    w = c[t.spec.topic("wheel_loads")]
-    return bool(w >= n and c[t.spec.topic("sleeper_response")] >= w and c[t.spec.topic("wheel_rail_response")] >= w)
+    if t.spec.topic("wheel_loads") not in c and t.spec.own_bag is None:  # not recorded: nothing to wait for
+        return True
+    w = c.get(t.spec.topic("wheel_loads"), 0)
+    return bool(w >= n and all(c[t.spec.topic(x)] >= w for x in DATA_TOPICS[1:] if t.spec.topic(x) in c))
 
 
 def _proc_key(t: Train, kind: str) -> str:

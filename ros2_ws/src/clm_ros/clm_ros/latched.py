@@ -37,6 +37,8 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=R
 VEHICLE_STATUS = "vehicle_status"
 #: The track node's latched status topic (relative: in the node's namespace).
 TRACK_STATUS = "track_status"
+#: A fleet pair's own recorder's latched status topic (relative: in the pair's namespace; clm_ros.fleet_pair).
+RECORDER_STATUS = "recorder_status"
 
 
 class LatchedStatus:

@@ -114,7 +114,7 @@ def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float, ready_timeo
     spec = TrainSpec(
         "demo", "", {**run.track_parameters(), "monitored_sleepers": DEMO_MONITORED_SLEEPERS},
         # one train, then the vehicle idles until stopped here; it waits for its track node and this recorder
-        run.vehicle_parameters(wait_for_subscribers=2))
+        run.vehicle_parameters(wait_for_subscribers=2), messages=run.messages)
     bar = Progress(run.messages, "clm demo", unit="msg")
     try:
         r = run_trains(out, [spec], domain_id=dom, env=ros_env(dom), topics=TOPICS, bag_name="demo_bag",
@@ -154,8 +154,7 @@ def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float, ready_timeo
 
 def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     """Read a demo bag back, plot it, and return figures (lags, peaks)."""
-    from clm_core.io.bags import BagReader
-    from clm_core.io.timebase import stamp_ns
+    from clm_ros.bag_tools import read_topics
 
     wheel_t: list[int] = []
     wheel_F: list[np.ndarray] = []
@@ -167,28 +166,22 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
     s_F: list[np.ndarray] = []
     s_w: list[np.ndarray] = []
     diag: dict[str, str] = {}
-    reader = BagReader(bag)
-    try:
-        for bm in reader.messages():
-            m = reader.deserialize(bm.data, bm.msgtype)
-            if bm.topic == "/wheel_loads":
-                wheel_t.append(stamp_ns(m.header))
-                wheel_F.append(np.array([w.force for w in m.wheels]))
-                wheel_x.append(np.array([w.position for w in m.wheels]))
-            elif bm.topic == "/sleeper_response":
-                st = stamp_ns(m.header)
-                recv[st] = bm.log_ns
-                s_t.append(st)
-                s_idx.append(np.asarray(m.sleeper_index))
-                s_x.append(np.asarray(m.position))
-                s_F.append(np.asarray(m.soil_force))
-                s_w.append(np.asarray(m.rail_deflection))
-            elif bm.topic == "/diagnostics":
-                for status in m.status:
-                    if "track-soil" in status.name:
-                        diag = {kv.key: kv.value for kv in status.values}
-    finally:
-        reader.close()
+    got = read_topics(bag, ["/wheel_loads", "/sleeper_response", "/diagnostics"])
+    for _, w in got.get("/wheel_loads", []):
+        wheel_t.append(w.stamp_ns)
+        wheel_F.append(w.forces)
+        wheel_x.append(w.positions)
+    for log_ns, r in got.get("/sleeper_response", []):
+        recv[r.stamp_ns] = log_ns
+        s_t.append(r.stamp_ns)
+        s_idx.append(r.sleeper_index)
+        s_x.append(r.position)
+        s_F.append(r.soil_force)
+        s_w.append(r.rail_deflection)
+    for _, d in got.get("/diagnostics", []):
+        for status in d.status:
+            if "track-soil" in status.name:
+                diag = {kv.key: kv.value for kv in status.values}
     if not s_t:
         raise ClmRosError(f"bag {bag}: no sleeper responses recorded")
     t0 = wheel_t[0]

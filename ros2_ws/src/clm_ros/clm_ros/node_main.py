@@ -25,6 +25,9 @@ vehicle and a track node on one executor, :mod:`clm_ros.fleet_pair`):
   ``SCHED_FIFO`` at the node's ``realtime_priority`` when permitted
   (:mod:`clm_ros.realtime`; the start-up ran at normal priority), said once
   in the log and kept in the node's ``scheduling`` for its /diagnostics;
+  back to normal scheduling as soon as the spinning ends (a stop), so that
+  nothing of the shut-down can busy-wait under ``SCHED_FIFO``
+  (:func:`clm_ros.realtime.release_fifo`);
 - an executor (``EventsExecutor`` unless the node needs another: its
   ``spin()`` delivered no callback on the Jazzy wheels, measured in
   benchmarks/node_lag.py) spun with ``spin_once`` until the flag is set or
@@ -92,7 +95,7 @@ from rclpy.utilities import get_default_context
 
 from clm_core.errors import ClmError
 from clm_ros.node_log import bounded
-from clm_ros.realtime import apply_fifo
+from clm_ros.realtime import apply_fifo, release_fifo
 from clm_ros.shm import clean_stale_ports, domain_of_environment
 
 __all__ = ["FASTDDS_PROFILE", "PUBLICATION_MODE", "START_ERRORS", "StopSignals", "exit_process", "freeze_heap",
@@ -222,6 +225,7 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
         _schedule(nodes)
         stop.install(interrupt=False)
         code = _spin(nodes, executor, stop, poll)
+        _leave_realtime(nodes)  # the shut-down never runs under SCHED_FIFO (clm_ros.realtime.release_fifo)
         if stop.requested():
             for node in _having(nodes, "drain"):
                 node.drain(lambda done, timeout: _spin_until(executor, lambda: done() or stop.count > 1, timeout))
@@ -229,6 +233,7 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
         pass
     finally:
         stop.install(interrupt=False)
+        _leave_realtime(nodes)  # (again: an exception ended the spinning)
         for node in _having(nodes, "stop"):
             node.stop()
         if executor is not None:
@@ -261,6 +266,13 @@ def _schedule(nodes: tuple[Any, ...]) -> None:
         logger.warning(f"scheduling: {outcome.text}; answers may wait for other processes on a busy machine")
     else:
         logger.info(f"scheduling: {outcome.text}")
+
+
+def _leave_realtime(nodes: tuple[Any, ...]) -> None:
+    """Back to normal scheduling for the shut-down, said once when there was real-time scheduling."""
+    n = release_fifo()
+    if n and nodes:
+        nodes[0].get_logger().info(f"scheduling: back to normal for the shut-down ({n} threads)")
 
 
 def _exit_code(nodes: tuple[Any, ...]) -> int | None:

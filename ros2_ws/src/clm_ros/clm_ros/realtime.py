@@ -37,7 +37,7 @@ from pathlib import Path
 
 from clm_ros.parameters import REALTIME_PRIORITY
 
-__all__ = ["MAX_PRIORITY", "NOT_APPLIED", "Scheduling", "apply_fifo", "thread_scheduling"]
+__all__ = ["MAX_PRIORITY", "NOT_APPLIED", "Scheduling", "apply_fifo", "release_fifo", "thread_scheduling"]
 
 #: Highest priority a node may ask for: the setting's bound (99 is left to the kernel's watchdogs).
 MAX_PRIORITY = int(REALTIME_PRIORITY.maximum or 0)
@@ -157,3 +157,29 @@ def apply_fifo(priority: int) -> Scheduling:
                if exc.errno == errno.EPERM else os.strerror(exc.errno or 0))
         return Scheduling(priority, 0, reason=why)
     return Scheduling(priority, priority, threads=len(done))
+
+
+def release_fifo() -> int:
+    """Put every real-time thread of this process back under ``SCHED_OTHER``; return how many were.
+
+    :func:`clm_ros.node_main.run_node` calls it as soon as a stop is
+    requested: the shut-down (the node's drain, the executor, the DDS
+    participant and its transports) runs at normal priority. A wait that
+    spins there (a yield loop on another thread's progress, a resend to a
+    starved peer) is then one normal process among others instead of a
+    ``SCHED_FIFO`` one that preempts everything normal, the peer it waits for
+    included (issue 21: fleet pairs stuck at ~92 % CPU after SIGINT, load 124,
+    until SIGKILL). Threads that end meanwhile are skipped; errors are ignored
+    (a process that could raise its priority can lower it).
+    """
+    if not (hasattr(os, "sched_setscheduler") and _TASKS.is_dir()):
+        return 0
+    n = 0
+    for tid, (policy, _) in thread_scheduling().items():
+        if policy in (os.SCHED_FIFO, os.SCHED_RR):
+            try:
+                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+                n += 1
+            except OSError:
+                continue
+    return n

@@ -23,6 +23,9 @@ def register(sub: Any) -> None:
     p.add_argument("--open-loop", dest="closed_loop", action="store_false", help=argparse.SUPPRESS)
     p.add_argument("--no-record", dest="record", action="store_false",
                    help="no bag (figures from the vehicles' own counts and lags; implies --no-verify)")
+    p.add_argument("--record-sleepers", action="store_true",
+                   help="also record each pair's sleeper_response (61 sleepers, ~3 KB at 1 kHz per train; default: "
+                   "its wheel_loads and wheel_rail_response, what the offline check needs)")
     p.add_argument("--no-verify", dest="verify", action="store_false",
                    help="skip the offline replay check of each pair's answers")
     p.add_argument("--discovery-range", default="LOCALHOST", choices=("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT"),
@@ -72,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
             record=record, verify=args.verify and record, discovery_range=args.discovery_range,
             static_peers=args.static_peers, timeout=args.timeout, overwrite=args.overwrite,
             pair_process=args.pair_process, stagger=args.stagger, hold_domain=args.hold_domain,
+            record_sleepers=args.record_sleepers,
         )
     except ClmRosError as exc:
         print(f"clm fleet: error: {exc}", file=sys.stderr)
@@ -82,7 +86,9 @@ def run(args: argparse.Namespace) -> int:
                  "offline replay not checked" if "offline_equal" not in t else "NOT equal to offline replay")
         print(f"fleet: {name}: {t['messages_in']} in, {t['messages_out']} out; lag median "
               f"{quantity(t['lag_median_s'], 's')}, p99 {quantity(t['lag_p99_s'], 's')}, max "
-              f"{quantity(t['lag_max_s'], 's')}; feedback {t['feedback_used']}/{t['feedback_total']} "
+              f"{quantity(t['lag_max_s'], 's')}"
+              + (f" (recorder behind by p99 {quantity(t['recorder_lag_p99_s'], 's')})" if "recorder_lag_p99_s" in t
+                 else "") + f"; feedback {t['feedback_used']}/{t['feedback_total']} "
               f"({used:.1f} %); {check}")
     o = s["overall"]
     print(f"fleet: worst lag p99 {quantity(o['worst_lag_p99_s'], 's')}, max {quantity(o['worst_lag_max_s'], 's')}; "
