@@ -8,7 +8,7 @@ its reliability is resolved against the publishers present ("best available",
 peers that come and go, a best-effort publisher appearing); its messages are
 taken with their publisher's GID (:class:`clm_ros.sources.GidSubscription`):
 the first publisher heard is the stream's source, a second one is refused
-(``second_source``, counted) until the source leaves the graph
+(``second_source``, counted) until the source leaves the graph or goes quiet
 (:class:`clm_ros.sources.Sources`); what is taken goes to
 :meth:`TrackInput._answer` (the track node's data path) in chunks of at most
 :data:`CHUNK`.
@@ -195,14 +195,22 @@ class TrackInput(LifecycleNode):
 
     def _drain(self, sub: Any, raws: list[bytes]) -> None:
         """Take everything waiting in ``sub`` after ``raws`` and answer it, in chunks of at most CHUNK."""
-        take, admit = sub.take, self._sources.admit
+        take, sources = sub.take, self._sources
         while True:
             got = take()
             if got is None:
                 break
-            if not admit(got[1]):
+            if not sources.admit(got[1], got[2]):
                 self._second_source(got[1])
                 continue
+            if sources.fresh:  # the source went quiet and this publisher took over: its message starts a new stream
+                sources.fresh = False
+                if raws:
+                    self._answer(raws)
+                    raws = []
+                self._new_stream = True
+                self._log("info", f"wheel_loads: the stream's source went quiet; publisher {gid_text(got[1])} "
+                          "takes over (a new stream)")
             raws.append(got[0])
             if len(raws) >= CHUNK:
                 self._answer(raws)
