@@ -16,8 +16,14 @@ process of its own; this process feeds it for ``--duration`` s of wall time:
 
 Printed (never asserted): valid frames sent = answered (each exactly once),
 hostile frames answered (must be 0), the node's counters, the transitions
-and updates, and the node's resident memory (RSS) and open file
-descriptors from the first minute to the end (target: RSS flat within 5 %).
+and updates, the lag of the answers (the middleware's reception time of each
+``/wheel_rail_response`` in this process, rmw ``received_timestamp``, so not
+this process's own lateness in taking it, minus the moment this process
+published the wheel load: median, p99, p99.9, max, and the worst minute's
+p99; and the worst ``lag_p99_s`` the
+node itself reported in a diagnostics period), and the node's resident
+memory (RSS) and open file descriptors from the first minute to the end with
+the least-squares slope of RSS over that span (target: RSS flat within 5 %).
 
 Usage::
 
@@ -124,7 +130,9 @@ class Control:
 
 
 def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
+    import rclpy
     from clm_msgs.msg import WheelRailResponse
+    from clm_ros.bag_tools import take_raw
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     rng = random.Random(a.seed)
@@ -132,12 +140,20 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
     with track_node({"diagnostics_period": 0.5}, log_dir, "track_node_soak") as (proc, lis):
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         wheel_answers: list[int] = []
-        wsub = lis.node.create_subscription(WheelRailResponse, "/wheel_rail_response",
-                                            lambda b: wheel_answers.append(header_stamp(b)), qos, raw=True)
+        wheel_recv: list[int] = []  # the middleware's reception times [ns]
+        # a node no executor spins: its answers are taken with their reception time (clm_ros.bag_tools.take_raw)
+        timing = rclpy.create_node("clm_soak_timing", context=lis.ctx)
+        wsub = timing.create_subscription(WheelRailResponse, "/wheel_rail_response", lambda _b: None, qos, raw=True)
+
+        def drain() -> None:
+            for b, recv in take_raw(wsub):
+                wheel_answers.append(header_stamp(b))
+                wheel_recv.append(recv or time.time_ns())
         ctl = Control(lis)
         chunk = stream(10_000, a.rate)  # positions repeat every 10 s of traffic, shifted forwards
         t_first = time.time_ns()
         valid: list[int] = []
+        sent_at: dict[int, int] = {}  # stamp -> wall time of the publish [ns]
         hostile_sent: dict[str, int] = dict.fromkeys(HOSTILE, 0)
         hostile_stamps: set[int] = set()
         log: list[str] = []
@@ -147,13 +163,14 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         next_cycle = t0 + rng.uniform(20, 60)
         next_update = t0 + rng.uniform(10, 30)
         next_mem = t0
-        next_due = time.monotonic()
+        next_due = next_drain = time.monotonic()
         k = 0
 
         def settle() -> None:
             """Every answer owed has arrived (or none came for 5 s: the report shows what is missing)."""
             last, t_last = -1, time.monotonic()
             while len(lis.stamps) < len(valid) or len(wheel_answers) < len(valid):
+                drain()
                 got = len(lis.stamps) + len(wheel_answers)
                 if got != last:
                     last, t_last = got, time.monotonic()
@@ -191,6 +208,9 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
                     key = "unstable_accepted" if ctl.set_double("soil.dc", -4e5) else "unstable_refused"
                 updates[key] += 1
                 next_update = time.monotonic() + rng.uniform(10, 30)
+            if now >= next_drain:
+                drain()
+                next_drain = now + 0.01
             if now < next_due:
                 lis.ex.spin_once(timeout_sec=next_due - now)
                 continue
@@ -206,6 +226,7 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
                 with contextlib.suppress(struct.error, IndexError):
                     hostile_stamps.add(header_stamp(h))
                 lis.pub.publish(h)
+            sent_at[t_ns] = time.time_ns()
             lis.pub.publish(raw)
             valid.append(t_ns)
             k += 1
@@ -215,6 +236,11 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         lis.wait(lambda: len(lis.diags) > n_diag + 1, 10, "final diagnostics")
         d = lis.diags[-1]
         answered = lis.stamps
+        drain()
+        lags = [(r - sent_at[st], r) for st, r in zip(wheel_answers, wheel_recv) if st in sent_at]
+        timing.destroy_node()
+        node_p99 = [float(x["lag_p99_s"]) for x in lis.diags
+                    if x.get("lag_p99_s", "nan") not in ("nan",) and not x["lag_p99_s"].startswith("unavailable")]
         t_sig = time.monotonic()
         proc.send_signal(signal.SIGINT)
         rc = proc.wait(30)
@@ -226,7 +252,8 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         "duplicates": len(answered) - len(set(answered)),
         "answered_hostile": len(hostile_stamps & set(answered) - valid_set),
         "in_order": answered == sorted(answered), "hostile_sent": hostile_sent, "node": d, "log": log,
-        "updates": updates, "memory": mem, "exit_code": rc, "exit_s": exit_s, "loadavg": os.getloadavg()[0],
+        "updates": updates, "memory": mem, "lags": lags, "node_lag_p99_s": node_p99, "exit_code": rc,
+        "exit_s": exit_s, "loadavg": os.getloadavg()[0],
     }
 
 
@@ -247,13 +274,26 @@ def report(r: dict[str, Any], a: argparse.Namespace) -> None:
           f"{d['largest_batch']}")
     print(f"lifecycle: {len(r['log'])} transitions ({sum('REFUSED' in x for x in r['log'])} refused); parameter "
           f"updates: {r['updates']}")
+    lags = np.array([lag for lag, _ in r["lags"]], dtype=float) * 1e-6  # [ms]
+    if lags.size:
+        recv = np.array([t for _, t in r["lags"]], dtype=np.int64)
+        minute = (recv - recv[0]) // (60 * NS)
+        worst_minute = max(float(np.percentile(lags[minute == m], 99)) for m in np.unique(minute))
+        q = np.percentile(lags, [50, 99, 99.9])
+        print(f"lag (answer's reception by the middleware here - wheel load published here), {lags.size} answers: "
+              f"median {q[0]:.2f} ms, "
+              f"p99 {q[1]:.2f} ms, p99.9 {q[2]:.2f} ms, max {lags.max():.1f} ms; worst minute's p99 "
+              f"{worst_minute:.2f} ms; the node's own lag_p99_s, worst period "
+              f"{1e3 * max(r['node_lag_p99_s'], default=float('nan')):.2f} ms of {len(r['node_lag_p99_s'])}")
     mem = r["memory"]
     base = next((m for m in mem if m[0] >= 60.0), mem[min(1, len(mem) - 1)])
     last = mem[-1]
     peak = max(m[1] for m in mem)
+    span = [m for m in mem if m[0] >= base[0]]
+    slope = float(np.polyfit([m[0] for m in span], [m[1] for m in span], 1)[0]) * 60 if len(span) > 2 else float("nan")
     print(f"memory: RSS {base[1]:.1f} MB at {base[0]:.0f} s -> {last[1]:.1f} MB at {last[0]:.0f} s "
-          f"({100 * (last[1] / base[1] - 1):+.1f} %; peak {peak:.1f} MB; at start {mem[0][1]:.1f} MB); "
-          f"file descriptors {base[2]} -> {last[2]} (start {mem[0][2]})")
+          f"({100 * (last[1] / base[1] - 1):+.1f} %; slope {slope:+.3f} MB/min over {len(span)} samples; peak "
+          f"{peak:.1f} MB; at start {mem[0][1]:.1f} MB); file descriptors {base[2]} -> {last[2]} (start {mem[0][2]})")
     print(f"exit on SIGINT: code {r['exit_code']} after {r['exit_s']:.2f} s")
 
 
