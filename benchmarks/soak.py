@@ -16,11 +16,14 @@ process of its own; this process feeds it for ``--duration`` s of wall time:
 
 Printed (never asserted): valid frames sent = answered (each exactly once),
 hostile frames answered (must be 0), the node's counters, the transitions
-and updates, the lag of the answers (the middleware's reception time of each
-``/wheel_rail_response`` in this process, rmw ``received_timestamp``, so not
-this process's own lateness in taking it, minus the moment this process
-published the wheel load: median, p99, p99.9, max, and the worst minute's
-p99; and the worst ``lag_p99_s`` the
+and updates, the lag of the answers, split in two: the node's (the
+``source_timestamp`` of each ``/wheel_rail_response``, the moment the node
+published it, minus the moment this process published the wheel load) and
+the delivery's (the middleware's reception time of the answer here, rmw
+``received_timestamp``, minus its ``source_timestamp``: a reliable sample
+lost on the way is repaired after the writer's next heartbeat), each with
+median, p99, p99.9, max and the worst minute's p99 (the reception times are
+not this process's lateness in taking the answers); and the worst ``lag_p99_s`` the
 node itself reported in a diagnostics period), and the node's resident
 memory (RSS) and open file descriptors from the first minute to the end with
 the least-squares slope of RSS over that span (target: RSS flat within 5 %).
@@ -132,7 +135,6 @@ class Control:
 def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
     import rclpy
     from clm_msgs.msg import WheelRailResponse
-    from clm_ros.bag_tools import take_raw
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     rng = random.Random(a.seed)
@@ -140,15 +142,19 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
     with track_node({"diagnostics_period": 0.5}, log_dir, "track_node_soak") as (proc, lis):
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         wheel_answers: list[int] = []
-        wheel_recv: list[int] = []  # the middleware's reception times [ns]
-        # a node no executor spins: its answers are taken with their reception time (clm_ros.bag_tools.take_raw)
+        wheel_times: list[tuple[int, int]] = []  # the answers' source_timestamp and received_timestamp [ns]
+        # a node no executor spins: its answers are taken with the middleware's times (rmw_message_info_t)
         timing = rclpy.create_node("clm_soak_timing", context=lis.ctx)
         wsub = timing.create_subscription(WheelRailResponse, "/wheel_rail_response", lambda _b: None, qos, raw=True)
 
         def drain() -> None:
-            for b, recv in take_raw(wsub):
-                wheel_answers.append(header_stamp(b))
-                wheel_recv.append(recv or time.time_ns())
+            while True:
+                with wsub.handle:
+                    taken = wsub.handle.take_message(wsub.msg_type, True)
+                if taken is None:
+                    return
+                wheel_answers.append(header_stamp(taken[0]))
+                wheel_times.append((int(taken[1]["source_timestamp"]), int(taken[1]["received_timestamp"])))
         ctl = Control(lis)
         chunk = stream(10_000, a.rate)  # positions repeat every 10 s of traffic, shifted forwards
         t_first = time.time_ns()
@@ -237,7 +243,8 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         d = lis.diags[-1]
         answered = lis.stamps
         drain()
-        lags = [(r - sent_at[st], r) for st, r in zip(wheel_answers, wheel_recv) if st in sent_at]
+        lags = [(src - sent_at[st], recv - src, recv) for st, (src, recv) in zip(wheel_answers, wheel_times)
+                if st in sent_at]
         timing.destroy_node()
         node_p99 = [float(x["lag_p99_s"]) for x in lis.diags
                     if x.get("lag_p99_s", "nan") not in ("nan",) and not x["lag_p99_s"].startswith("unavailable")]
@@ -274,17 +281,19 @@ def report(r: dict[str, Any], a: argparse.Namespace) -> None:
           f"{d['largest_batch']}")
     print(f"lifecycle: {len(r['log'])} transitions ({sum('REFUSED' in x for x in r['log'])} refused); parameter "
           f"updates: {r['updates']}")
-    lags = np.array([lag for lag, _ in r["lags"]], dtype=float) * 1e-6  # [ms]
-    if lags.size:
-        recv = np.array([t for _, t in r["lags"]], dtype=np.int64)
-        minute = (recv - recv[0]) // (60 * NS)
-        worst_minute = max(float(np.percentile(lags[minute == m], 99)) for m in np.unique(minute))
-        q = np.percentile(lags, [50, 99, 99.9])
-        print(f"lag (answer's reception by the middleware here - wheel load published here), {lags.size} answers: "
-              f"median {q[0]:.2f} ms, "
-              f"p99 {q[1]:.2f} ms, p99.9 {q[2]:.2f} ms, max {lags.max():.1f} ms; worst minute's p99 "
-              f"{worst_minute:.2f} ms; the node's own lag_p99_s, worst period "
-              f"{1e3 * max(r['node_lag_p99_s'], default=float('nan')):.2f} ms of {len(r['node_lag_p99_s'])}")
+    if r["lags"]:
+        lags = np.array(r["lags"], dtype=np.int64)
+        minute = (lags[:, 2] - lags[0, 2]) // (60 * NS)
+        for col, what in ((0, "node (answer published - wheel load published)"),
+                          (1, "delivery (answer received - published)")):
+            x = lags[:, col] * 1e-6  # [ms]
+            worst_minute = max(float(np.percentile(x[minute == m], 99)) for m in np.unique(minute))
+            q = np.percentile(x, [50, 99, 99.9])
+            print(f"lag, {what}, {x.size} answers: median {q[0]:.2f} ms, p99 {q[1]:.2f} ms, p99.9 {q[2]:.2f} ms, "
+                  f"max {x.max():.1f} ms; worst minute's p99 {worst_minute:.2f} ms")
+        print(f"the node's own lag_p99_s (answer published - stamp; the stamps run behind the wall clock after each "
+              f"pause), worst period {1e3 * max(r['node_lag_p99_s'], default=float('nan')):.2f} ms of "
+              f"{len(r['node_lag_p99_s'])}")
     mem = r["memory"]
     base = next((m for m in mem if m[0] >= 60.0), mem[min(1, len(mem) - 1)])
     last = mem[-1]
