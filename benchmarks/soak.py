@@ -163,6 +163,7 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         hostile_sent: dict[str, int] = dict.fromkeys(HOSTILE, 0)
         hostile_stamps: set[int] = set()
         log: list[str] = []
+        events: list[tuple[int, int, str]] = []  # (start, end [ns, system clock], what): transitions, updates
         mem: list[tuple[float, float, int]] = []
         updates = {"valid": 0, "valid_refused": 0, "unstable_refused": 0, "unstable_accepted": 0}
         t0 = time.monotonic()
@@ -197,7 +198,9 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
                 full = rng.random() < 0.5
                 labels = ["deactivate", "cleanup", "configure", "activate"] if full else ["deactivate", "activate"]
                 for label in labels:
+                    t_ev = time.time_ns()
                     ok = ctl.transition(label)
+                    events.append((t_ev, time.time_ns(), label))
                     log.append(f"{now - t0:6.1f} s {label}: {'ok' if ok else 'REFUSED'}")
                     if label == "deactivate":  # this process sees the subscription go before it comes back
                         lis.wait(lambda: lis.pub.get_subscription_count() == 0, 30, "the subscription gone")
@@ -207,11 +210,13 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
                 next_cycle = time.monotonic() + rng.uniform(20, 60)
                 next_due = time.monotonic()
             if now >= next_update:
+                t_ev = time.time_ns()
                 if rng.random() < 0.7:
                     kb = rng.uniform(40e6, 80e6)
                     key = "valid" if ctl.set_double("track.kb", kb) else "valid_refused"
                 else:
                     key = "unstable_accepted" if ctl.set_double("soil.dc", -4e5) else "unstable_refused"
+                events.append((t_ev, time.time_ns(), f"update {key}"))
                 updates[key] += 1
                 next_update = time.monotonic() + rng.uniform(10, 30)
             if now >= next_drain:
@@ -259,9 +264,31 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         "duplicates": len(answered) - len(set(answered)),
         "answered_hostile": len(hostile_stamps & set(answered) - valid_set),
         "in_order": answered == sorted(answered), "hostile_sent": hostile_sent, "node": d, "log": log,
-        "updates": updates, "memory": mem, "lags": lags, "node_lag_p99_s": node_p99, "exit_code": rc,
+        "updates": updates, "memory": mem, "lags": lags, "node_lag_p99_s": node_p99, "events": events, "exit_code": rc,
         "exit_s": exit_s, "loadavg": os.getloadavg()[0],
     }
+
+
+def late_episodes(lags: np.ndarray, events: list[tuple[int, int, str]], late_ms: float = 100.0) -> None:
+    """Print the episodes of answers the node published more than ``late_ms`` after their wheel load (answers
+    closer than 1 s together are one episode), each with the last transition or update begun before it."""
+    pub = lags[:, 2] - lags[:, 1]  # the node's publish time [ns]
+    sent = pub - lags[:, 0]
+    late = np.flatnonzero(lags[:, 0] > late_ms * 1e6)
+    if not late.size:
+        print(f"no answer published more than {late_ms:g} ms after its wheel load")
+        return
+    splits = np.flatnonzero(np.diff(sent[late]) > NS) + 1
+    episodes = np.split(late, splits)
+    print(f"{late.size} answers published more than {late_ms:g} ms after their wheel load, in {len(episodes)} "
+          f"episode(s); the worst 8:")
+    for ep in sorted(episodes, key=lambda e: -lags[e, 0].max())[:8]:
+        t = int(sent[ep[0]])
+        before = [e for e in events if e[0] <= t + NS]
+        what = (f"{before[-1][2]} begun {(t - before[-1][0]) * 1e-9:+.2f} s before, took "
+                f"{(before[-1][1] - before[-1][0]) * 1e-9:.2f} s" if before else "no event before")
+        print(f"  at {(t - sent[0]) * 1e-9:7.1f} s: {ep.size} answers, worst {lags[ep, 0].max() * 1e-6:.0f} ms; "
+              f"last transition/update: {what}")
 
 
 def report(r: dict[str, Any], a: argparse.Namespace) -> None:
@@ -291,6 +318,7 @@ def report(r: dict[str, Any], a: argparse.Namespace) -> None:
             q = np.percentile(x, [50, 99, 99.9])
             print(f"lag, {what}, {x.size} answers: median {q[0]:.2f} ms, p99 {q[1]:.2f} ms, p99.9 {q[2]:.2f} ms, "
                   f"max {x.max():.1f} ms; worst minute's p99 {worst_minute:.2f} ms")
+        late_episodes(lags, r["events"])
         print(f"the node's own lag_p99_s (answer published - stamp; the stamps run behind the wall clock after each "
               f"pause), worst period {1e3 * max(r['node_lag_p99_s'], default=float('nan')):.2f} ms of "
               f"{len(r['node_lag_p99_s'])}")
