@@ -46,9 +46,11 @@ __all__ = ["GID_BYTES", "QUIET_S", "GidSubscription", "Sources", "gid_text"]
 
 #: Bytes of an rmw GID (``RMW_GID_STORAGE_SIZE`` of ROS 2 Jazzy).
 GID_BYTES = 16
-#: A source that has sent nothing for this long [s] (reception times) yields to the next publisher heard: longer
-#: than any pause of a live 1-kHz publisher on a loaded machine (stalls of a process seen here: < 1 s), shorter
-#: than the DDS leases (10-20 s) that keep a dead publisher on the graph.
+#: A source that has sent nothing for this long [s] (reception times) yields to the next publisher heard: shorter
+#: than the DDS leases (10-20 s) that keep a dead publisher on the graph, longer than the pauses of a live 1-kHz
+#: publisher in the tests. A live source whose messages reach the node more than this late while another
+#: publisher's keep arriving (a machine stalled for seconds) loses the stream to it: counted in
+#: ``source_quiet_takeovers``, its own messages then refused as ``second_source``.
 QUIET_S = 3.0
 #: ``RCL_RET_OK`` and ``RCL_RET_SUBSCRIPTION_TAKE_FAILED`` (nothing to take).
 _RCL_OK, _RCL_TAKE_FAILED = 0, 401
