@@ -16,8 +16,17 @@ process of its own; this process feeds it for ``--duration`` s of wall time:
 
 Printed (never asserted): valid frames sent = answered (each exactly once),
 hostile frames answered (must be 0), the node's counters, the transitions
-and updates, and the node's resident memory (RSS) and open file
-descriptors from the first minute to the end (target: RSS flat within 5 %).
+and updates, the lag of the answers, split in two: the node's (the
+``source_timestamp`` of each ``/wheel_rail_response``, the moment the node
+published it, minus the moment this process published the wheel load) and
+the delivery's (the middleware's reception time of the answer here, rmw
+``received_timestamp``, minus its ``source_timestamp``: a reliable sample
+lost on the way is repaired after the writer's next heartbeat), each with
+median, p99, p99.9, max and the worst minute's p99 (the reception times are
+not this process's lateness in taking the answers); and the worst ``lag_p99_s`` the
+node itself reported in a diagnostics period), and the node's resident
+memory (RSS) and open file descriptors from the first minute to the end with
+the least-squares slope of RSS over that span (target: RSS flat within 5 %).
 
 Usage::
 
@@ -124,6 +133,7 @@ class Control:
 
 
 def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
+    import rclpy
     from clm_msgs.msg import WheelRailResponse
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -132,28 +142,42 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
     with track_node({"diagnostics_period": 0.5}, log_dir, "track_node_soak") as (proc, lis):
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         wheel_answers: list[int] = []
-        wsub = lis.node.create_subscription(WheelRailResponse, "/wheel_rail_response",
-                                            lambda b: wheel_answers.append(header_stamp(b)), qos, raw=True)
+        wheel_times: list[tuple[int, int]] = []  # the answers' source_timestamp and received_timestamp [ns]
+        # a node no executor spins: its answers are taken with the middleware's times (rmw_message_info_t)
+        timing = rclpy.create_node("clm_soak_timing", context=lis.ctx)
+        wsub = timing.create_subscription(WheelRailResponse, "/wheel_rail_response", lambda _b: None, qos, raw=True)
+
+        def drain() -> None:
+            while True:
+                with wsub.handle:
+                    taken = wsub.handle.take_message(wsub.msg_type, True)
+                if taken is None:
+                    return
+                wheel_answers.append(header_stamp(taken[0]))
+                wheel_times.append((int(taken[1]["source_timestamp"]), int(taken[1]["received_timestamp"])))
         ctl = Control(lis)
         chunk = stream(10_000, a.rate)  # positions repeat every 10 s of traffic, shifted forwards
         t_first = time.time_ns()
         valid: list[int] = []
+        sent_at: dict[int, int] = {}  # stamp -> wall time of the publish [ns]
         hostile_sent: dict[str, int] = dict.fromkeys(HOSTILE, 0)
         hostile_stamps: set[int] = set()
         log: list[str] = []
+        events: list[tuple[int, int, str]] = []  # (start, end [ns, system clock], what): transitions, updates
         mem: list[tuple[float, float, int]] = []
         updates = {"valid": 0, "valid_refused": 0, "unstable_refused": 0, "unstable_accepted": 0}
         t0 = time.monotonic()
         next_cycle = t0 + rng.uniform(20, 60)
         next_update = t0 + rng.uniform(10, 30)
         next_mem = t0
-        next_due = time.monotonic()
+        next_due = next_drain = time.monotonic()
         k = 0
 
         def settle() -> None:
             """Every answer owed has arrived (or none came for 5 s: the report shows what is missing)."""
             last, t_last = -1, time.monotonic()
             while len(lis.stamps) < len(valid) or len(wheel_answers) < len(valid):
+                drain()
                 got = len(lis.stamps) + len(wheel_answers)
                 if got != last:
                     last, t_last = got, time.monotonic()
@@ -174,7 +198,9 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
                 full = rng.random() < 0.5
                 labels = ["deactivate", "cleanup", "configure", "activate"] if full else ["deactivate", "activate"]
                 for label in labels:
+                    t_ev = time.time_ns()
                     ok = ctl.transition(label)
+                    events.append((t_ev, time.time_ns(), label))
                     log.append(f"{now - t0:6.1f} s {label}: {'ok' if ok else 'REFUSED'}")
                     if label == "deactivate":  # this process sees the subscription go before it comes back
                         lis.wait(lambda: lis.pub.get_subscription_count() == 0, 30, "the subscription gone")
@@ -184,13 +210,18 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
                 next_cycle = time.monotonic() + rng.uniform(20, 60)
                 next_due = time.monotonic()
             if now >= next_update:
+                t_ev = time.time_ns()
                 if rng.random() < 0.7:
                     kb = rng.uniform(40e6, 80e6)
                     key = "valid" if ctl.set_double("track.kb", kb) else "valid_refused"
                 else:
                     key = "unstable_accepted" if ctl.set_double("soil.dc", -4e5) else "unstable_refused"
+                events.append((t_ev, time.time_ns(), f"update {key}"))
                 updates[key] += 1
                 next_update = time.monotonic() + rng.uniform(10, 30)
+            if now >= next_drain:
+                drain()
+                next_drain = now + 0.01
             if now < next_due:
                 lis.ex.spin_once(timeout_sec=next_due - now)
                 continue
@@ -206,6 +237,7 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
                 with contextlib.suppress(struct.error, IndexError):
                     hostile_stamps.add(header_stamp(h))
                 lis.pub.publish(h)
+            sent_at[t_ns] = time.time_ns()
             lis.pub.publish(raw)
             valid.append(t_ns)
             k += 1
@@ -215,6 +247,12 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         lis.wait(lambda: len(lis.diags) > n_diag + 1, 10, "final diagnostics")
         d = lis.diags[-1]
         answered = lis.stamps
+        drain()
+        lags = [(src - sent_at[st], recv - src, recv) for st, (src, recv) in zip(wheel_answers, wheel_times)
+                if st in sent_at]
+        timing.destroy_node()
+        node_p99 = [float(x["lag_p99_s"]) for x in lis.diags
+                    if x.get("lag_p99_s", "nan") not in ("nan",) and not x["lag_p99_s"].startswith("unavailable")]
         t_sig = time.monotonic()
         proc.send_signal(signal.SIGINT)
         rc = proc.wait(30)
@@ -226,8 +264,31 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         "duplicates": len(answered) - len(set(answered)),
         "answered_hostile": len(hostile_stamps & set(answered) - valid_set),
         "in_order": answered == sorted(answered), "hostile_sent": hostile_sent, "node": d, "log": log,
-        "updates": updates, "memory": mem, "exit_code": rc, "exit_s": exit_s, "loadavg": os.getloadavg()[0],
+        "updates": updates, "memory": mem, "lags": lags, "node_lag_p99_s": node_p99, "events": events, "exit_code": rc,
+        "exit_s": exit_s, "loadavg": os.getloadavg()[0],
     }
+
+
+def late_episodes(lags: np.ndarray, events: list[tuple[int, int, str]], late_ms: float = 100.0) -> None:
+    """Print the episodes of answers the node published more than ``late_ms`` after their wheel load (answers
+    closer than 1 s together are one episode), each with the last transition or update begun before it."""
+    pub = lags[:, 2] - lags[:, 1]  # the node's publish time [ns]
+    sent = pub - lags[:, 0]
+    late = np.flatnonzero(lags[:, 0] > late_ms * 1e6)
+    if not late.size:
+        print(f"no answer published more than {late_ms:g} ms after its wheel load")
+        return
+    splits = np.flatnonzero(np.diff(sent[late]) > NS) + 1
+    episodes = np.split(late, splits)
+    print(f"{late.size} answers published more than {late_ms:g} ms after their wheel load, in {len(episodes)} "
+          f"episode(s); the worst 8:")
+    for ep in sorted(episodes, key=lambda e: -lags[e, 0].max())[:8]:
+        t = int(sent[ep[0]])
+        before = [e for e in events if e[0] <= t + NS]
+        what = (f"{before[-1][2]} begun {(t - before[-1][0]) * 1e-9:+.2f} s before, took "
+                f"{(before[-1][1] - before[-1][0]) * 1e-9:.2f} s" if before else "no event before")
+        print(f"  at {(t - sent[0]) * 1e-9:7.1f} s: {ep.size} answers, worst {lags[ep, 0].max() * 1e-6:.0f} ms; "
+              f"last transition/update: {what}")
 
 
 def report(r: dict[str, Any], a: argparse.Namespace) -> None:
@@ -247,13 +308,29 @@ def report(r: dict[str, Any], a: argparse.Namespace) -> None:
           f"{d['largest_batch']}")
     print(f"lifecycle: {len(r['log'])} transitions ({sum('REFUSED' in x for x in r['log'])} refused); parameter "
           f"updates: {r['updates']}")
+    if r["lags"]:
+        lags = np.array(r["lags"], dtype=np.int64)
+        minute = (lags[:, 2] - lags[0, 2]) // (60 * NS)
+        for col, what in ((0, "node (answer published - wheel load published)"),
+                          (1, "delivery (answer received - published)")):
+            x = lags[:, col] * 1e-6  # [ms]
+            worst_minute = max(float(np.percentile(x[minute == m], 99)) for m in np.unique(minute))
+            q = np.percentile(x, [50, 99, 99.9])
+            print(f"lag, {what}, {x.size} answers: median {q[0]:.2f} ms, p99 {q[1]:.2f} ms, p99.9 {q[2]:.2f} ms, "
+                  f"max {x.max():.1f} ms; worst minute's p99 {worst_minute:.2f} ms")
+        late_episodes(lags, r["events"])
+        print(f"the node's own lag_p99_s (answer published - stamp; the stamps run behind the wall clock after each "
+              f"pause), worst period {1e3 * max(r['node_lag_p99_s'], default=float('nan')):.2f} ms of "
+              f"{len(r['node_lag_p99_s'])}")
     mem = r["memory"]
     base = next((m for m in mem if m[0] >= 60.0), mem[min(1, len(mem) - 1)])
     last = mem[-1]
     peak = max(m[1] for m in mem)
+    span = [m for m in mem if m[0] >= base[0]]
+    slope = float(np.polyfit([m[0] for m in span], [m[1] for m in span], 1)[0]) * 60 if len(span) > 2 else float("nan")
     print(f"memory: RSS {base[1]:.1f} MB at {base[0]:.0f} s -> {last[1]:.1f} MB at {last[0]:.0f} s "
-          f"({100 * (last[1] / base[1] - 1):+.1f} %; peak {peak:.1f} MB; at start {mem[0][1]:.1f} MB); "
-          f"file descriptors {base[2]} -> {last[2]} (start {mem[0][2]})")
+          f"({100 * (last[1] / base[1] - 1):+.1f} %; slope {slope:+.3f} MB/min over {len(span)} samples; peak "
+          f"{peak:.1f} MB; at start {mem[0][1]:.1f} MB); file descriptors {base[2]} -> {last[2]} (start {mem[0][2]})")
     print(f"exit on SIGINT: code {r['exit_code']} after {r['exit_s']:.2f} s")
 
 

@@ -19,8 +19,17 @@ writer's identity, so the track node takes them itself:
   serves no guard condition).
 - :class:`Sources`: the first publisher heard is the stream's source; a
   message of any other publisher is refused (cause ``second_source``,
-  counted, logged once); when the source leaves the graph, the next publisher
-  heard takes over (a new stream: the model's state restarts).
+  counted, logged once); when the source leaves the graph, or has sent
+  nothing for :data:`QUIET_S` (by the middleware's reception times), the next
+  publisher heard takes over (a new stream: the model's state restarts).
+
+A source that dies without a goodbye (kill -9) stays on the graph until its
+lease runs out (Cyclone DDS: 10 s, Fast DDS: 20 s by default); a client
+restarted within it has a new GID. Without the quiet rule it was refused for
+the whole lease (every message of a restarted Cyclone client, lease 120 s);
+with it, it is served once the dead source has been quiet for
+:data:`QUIET_S`. Two live vehicles on one topic are still told apart: each
+sends every few milliseconds, so the source is never quiet that long.
 """
 
 from __future__ import annotations
@@ -28,14 +37,21 @@ from __future__ import annotations
 import ctypes
 import os
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Iterable
 from typing import Any
 
-__all__ = ["GID_BYTES", "GidSubscription", "Sources", "gid_text"]
+__all__ = ["GID_BYTES", "QUIET_S", "GidSubscription", "Sources", "gid_text"]
 
 #: Bytes of an rmw GID (``RMW_GID_STORAGE_SIZE`` of ROS 2 Jazzy).
 GID_BYTES = 16
+#: A source that has sent nothing for this long [s] (reception times) yields to the next publisher heard: shorter
+#: than the DDS leases (10-20 s) that keep a dead publisher on the graph, longer than the pauses of a live 1-kHz
+#: publisher in the tests. A live source whose messages reach the node more than this late while another
+#: publisher's keep arriving (a machine stalled for seconds) loses the stream to it: counted in
+#: ``source_quiet_takeovers``, its own messages then refused as ``second_source``.
+QUIET_S = 3.0
 #: ``RCL_RET_OK`` and ``RCL_RET_SUBSCRIPTION_TAKE_FAILED`` (nothing to take).
 _RCL_OK, _RCL_TAKE_FAILED = 0, 401
 
@@ -190,8 +206,9 @@ class GidSubscription:
     def get_publisher_count(self) -> int:
         return int(self.sub.get_publisher_count())
 
-    def take(self) -> tuple[bytes, bytes] | None:
-        """The next message (serialized bytes) and its publisher's GID, None when nothing is waiting."""
+    def take(self) -> tuple[bytes, bytes, int] | None:
+        """The next message (serialized bytes), its publisher's GID and its reception time (ns since the epoch,
+        the middleware's; 0 where it gives none); None when nothing is waiting."""
         if self.closed:
             return None
         buf, info = self._buf, self._info
@@ -200,7 +217,8 @@ class GidSubscription:
             return None
         if ret != _RCL_OK:
             raise RuntimeError(f"rcl_take_serialized_message failed ({ret})")
-        return ctypes.string_at(buf.buffer, buf.buffer_length), bytes(info.publisher_gid.data)
+        return (ctypes.string_at(buf.buffer, buf.buffer_length), bytes(info.publisher_gid.data),
+                int(info.received_timestamp))
 
     def destroy(self) -> None:
         """Stop the arrival callback, destroy the subscription (through the node) and free the buffer."""
@@ -220,28 +238,57 @@ class GidSubscription:
 class Sources:
     """Which publisher of a topic is the stream's source (the first heard); the others are refused.
 
+    Parameters
+    ----------
+    quiet_s : float
+        A source that has sent nothing for this long [s] yields to the next publisher heard (:data:`QUIET_S`).
+
     Attributes
     ----------
     source : bytes or None
         The GID of the stream's source (None until the first message, and after it left the graph).
     refused : Counter
         Messages refused per publisher GID.
+    heard : set of bytes
+        Every publisher heard.
+    takeovers : int
+        Sources that took over from a previous one (it left the graph or went quiet).
+    quiet_takeovers : int
+        Of ``takeovers``, those from a source that went quiet (still on the graph).
+    fresh : bool
+        Set when a publisher took over from a quiet source: a new stream begins with the message just admitted
+        (the owner restarts the state and clears the flag; after a source left the graph the owner knows it from
+        :meth:`graph`).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, quiet_s: float = QUIET_S) -> None:
+        if not quiet_s > 0:
+            raise ValueError(f"Sources: quiet_s must be > 0 s, got {quiet_s!r}")
+        self.quiet_ns = int(quiet_s * 1e9)
         self.source: bytes | None = None
         self.refused: Counter[bytes] = Counter()
         self.heard: set[bytes] = set()
         self.takeovers = 0
+        self.quiet_takeovers = 0
+        self.fresh = False
+        self._last_ns = 0  # reception time of the source's last message [ns]
         self._listed = False  # the source has been seen on the graph
 
-    def admit(self, gid: bytes) -> bool:
-        """Whether a message of publisher ``gid`` belongs to the stream (the first publisher heard becomes it)."""
+    def admit(self, gid: bytes, received_ns: int = 0) -> bool:
+        """Whether a message of publisher ``gid`` belongs to the stream (the first publisher heard becomes it).
+
+        ``received_ns``: the message's reception time [ns since the epoch] (the middleware's; 0: now). A
+        message of another publisher arriving more than ``quiet_s`` after the source's last one takes over."""
+        now = received_ns if received_ns > 0 else time.time_ns()
+        if self.source is not None and gid != self.source and now - self._last_ns > self.quiet_ns:
+            self.source, self._listed, self.fresh = None, False, True  # the source went quiet: a new stream
+            self.quiet_takeovers += 1
         if self.source is None:
             self.source, self._listed = gid, False
             self.takeovers += int(bool(self.heard))
         self.heard.add(gid)
         if gid == self.source:
+            self._last_ns = max(self._last_ns, now)
             return True
         self.refused[gid] += 1
         return False
@@ -263,10 +310,11 @@ class Sources:
         return False
 
     def values(self) -> dict[str, Any]:
-        """Diagnostics key-values: the source, the publishers heard, the messages refused."""
+        """Diagnostics key-values: the source, the publishers heard, the messages refused, the takeovers."""
         return {
             "wheel_load_source": gid_text(self.source) if self.source is not None else "none",
             "wheel_load_sources_heard": len(self.heard),
             "second_source_refused": sum(self.refused.values()),
             "source_takeovers": self.takeovers,
+            "source_quiet_takeovers": self.quiet_takeovers,
         }

@@ -9,7 +9,7 @@ reliability is resolved against the publishers present ("best available",
 publisher appearing); its messages are taken with their publisher's GID
 (:class:`clm_ros.sources.GidSubscription`): the first publisher heard is the
 stream's source, a second one is refused (``second_source``, counted) until
-the source leaves the graph (:class:`clm_ros.sources.Sources`); what is taken
+the source leaves the graph or goes quiet (:class:`clm_ros.sources.Sources`); what is taken
 goes to the node's data path (``answer``, :class:`clm_ros.track_answers.AnswerPath`)
 in chunks of at most :data:`CHUNK`.
 """
@@ -215,14 +215,22 @@ class WheelLoadInput:
 
     def _drain(self, sub: Any, raws: list[bytes]) -> None:
         """Take everything waiting in ``sub`` after ``raws`` and answer it, in chunks of at most CHUNK."""
-        take, admit = sub.take, self.sources.admit
+        take, sources = sub.take, self.sources
         while True:
             got = take()
             if got is None:
                 break
-            if not admit(got[1]):
+            if not sources.admit(got[1], got[2]):
                 self._second_source(got[1])
                 continue
+            if sources.fresh:  # the source went quiet and this publisher took over: its message starts a new stream
+                sources.fresh = False
+                if raws:
+                    self._answer(raws)
+                    raws = []
+                self.new_stream = True
+                self.log.info(f"wheel_loads: the stream's source went quiet; publisher {gid_text(got[1])} "
+                              "takes over (a new stream)")
             raws.append(got[0])
             if len(raws) >= CHUNK:
                 self._answer(raws)
