@@ -84,6 +84,7 @@ from scipy import signal, sparse
 from clm_core.arrays import Array, CArray, IntArray
 from clm_core.checks import positive
 from clm_core.errors import InputError, ParameterError
+from clm_core.freefield import cache as fcache
 from clm_core.halfspace.bem import rect_inverse_distance
 from clm_core.halfspace.green import KernelEngine, lagrange_weights
 from clm_core.profile import SoilProfile
@@ -231,6 +232,10 @@ class FreeFieldModel:
         Target model rate [Hz]; the model step is a whole number M of input steps.
     tail : float
         Memory kept after the slowest arrival [s].
+    cache : bool
+        Read the filters from, and write them to, the on-disk cache
+        (:mod:`clm_core.freefield.cache`, keyed by every input above and the
+        code revision); False: always build them.
 
     Attributes
     ----------
@@ -242,6 +247,8 @@ class FreeFieldModel:
         M (input steps per model step).
     leakage : float
         max |h| over the dropped taps / max |h| (non-causal leakage and truncation) [-].
+    cached : bool
+        The filters were read from the cache (``cache_key`` names the entry).
     """
 
     def __init__(
@@ -257,6 +264,7 @@ class FreeFieldModel:
         band: float = 100.0,
         model_rate: float = 250.0,
         tail: float = 0.25,
+        cache: bool = True,
     ) -> None:
         rec = np.asarray(receivers, dtype=float)
         if rec.ndim != 2 or rec.shape[1] != 2 or rec.shape[0] == 0:
@@ -276,6 +284,7 @@ class FreeFieldModel:
                 raise ParameterError(f"{name} = {v}: must be >= 0 [m]")
         self.contact_length = float(contact_length)
         self.contact_width = float(contact_width)
+        self.model_rate = float(model_rate)
         self.decimation = max(1, int(math.floor(1.0 / (self.dt * model_rate) + 1e-9)))
         self.model_dt = self.decimation * self.dt
         fs = 1.0 / self.model_dt
@@ -288,7 +297,24 @@ class FreeFieldModel:
         self.decimation_taps = decimation_filter(self.sos, self.decimation)
         self._geom = self._zone()
         self.first_sleeper = self._geom.j0
-        self.step_response, self.leakage, self.n_fir = self._design()
+        self.cached = False
+        key, text = fcache.model_key(
+            self.profile, self.receivers, spacing=self.spacing, dt=self.dt, contact_length=self.contact_length,
+            contact_width=self.contact_width, influence_length=self.influence_length, band=self.band,
+            model_rate=self.model_rate, tail=self.tail)
+        self.cache_key = key
+        hit = fcache.load(key, text) if cache else None
+        if hit is not None and hit["step_response"].shape[:2] == (self.n_zone, rec.shape[0]):
+            self.step_response = np.asarray(hit["step_response"], dtype=np.float64)
+            self.leakage, self.n_fir, self.delay = float(hit["leakage"]), int(hit["n_fir"]), int(hit["delay"])
+            self.freqs, self.transfer = hit["freqs"], hit["transfer"]
+            self.cached = True
+        else:
+            self.step_response, self.leakage, self.n_fir = self._design()
+            if cache:
+                fcache.store(key, text, {"step_response": self.step_response, "freqs": self.freqs,
+                                         "transfer": self.transfer, "leakage": self.leakage, "n_fir": self.n_fir,
+                                         "delay": self.delay})
 
     # ------------------------------------------------------------------ geometry
     def _zone(self) -> _Geometry:

@@ -2,11 +2,22 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import pytest
 
 from clm_core.freefield import FreeFieldModel
 from clm_core.profile import load_profile
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _filter_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """The tests' filter cache is their own (never the user's ~/.cache/clm), empty at the start of the session."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("CLM_CACHE_DIR", str(tmp_path_factory.mktemp("clm-cache")))
+    yield
+    mp.undo()
 
 
 @pytest.fixture(scope="session")
