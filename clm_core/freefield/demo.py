@@ -90,7 +90,8 @@ def read_demo_bag(bag: str | Path) -> DemoRecord:
     w_d: list[float] = []
     t0: int | None = None
     with BagReader(bag) as reader:
-        for bm in reader.messages(["/wheel_loads", "/sleeper_response", "/wheel_rail_response"]):
+        topics = [t for t in ("/wheel_loads", "/sleeper_response", "/wheel_rail_response") if t in reader.topics]
+        for bm in reader.messages(topics):
             m = reader.deserialize(bm.data, bm.msgtype)
             if bm.topic == "/wheel_loads":
                 if t0 is None:
@@ -226,10 +227,14 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     try:
         dist = tuple(float(s) for s in a.receivers.split(",") if s.strip())
-        entry = demo_receivers(a.out, dist, receiver_x=a.receiver_x, influence_length=a.influence)
     except ValueError:
         print(f"--receivers {a.receivers!r}: need distances [m], comma-separated", file=sys.stderr)
         return 2
+    if not (Path(a.out) / "demo_bag").is_dir():
+        print(f"error: {a.out}: no demo_bag/ (the output of clm demo)", file=sys.stderr)
+        return 2
+    try:
+        entry = demo_receivers(a.out, dist, receiver_x=a.receiver_x, influence_length=a.influence)
     except ClmError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

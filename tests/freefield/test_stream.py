@@ -8,7 +8,7 @@ from scipy import signal
 
 from clm_core.errors import InputError
 from clm_core.freefield import FreeFieldModel, ReceiverStream, receiver_velocity
-from tests.freefield.conftest import moving_window_forces
+from clm_core.synthetic.window import moving_window_forces
 
 
 def _stream(model: FreeFieldModel, t: np.ndarray, first: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
