@@ -11,8 +11,9 @@ Key
 SHA-256 of a canonical JSON text holding everything the filters depend on:
 the soil profile's values (per layer: thickness, E, rho, nu, beta, xi), the
 receivers (x, y), the sleeper spacing, the input step, the contact area,
-the influence length, the band limit, the model rate, the tail, and the
-code revision: the SHA-256 of the source of every module that computes
+the influence length, the band limit, the model rate, the tail, the
+design constants of :mod:`clm_core.freefield.model` (their values at run
+time: a test that changes one gets its own entries), and the code revision: the SHA-256 of the source of every module that computes
 them (:data:`SOURCES`), so an edit of the method invalidates every entry.
 Floats enter by ``repr`` (exact round trip), so equal inputs give equal
 keys and any change of a value gives a new key.
