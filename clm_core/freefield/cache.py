@@ -13,8 +13,9 @@ the soil profile's values (per layer: thickness, E, rho, nu, beta, xi), the
 receivers (x, y), the sleeper spacing, the input step, the contact area,
 the influence length, the band limit, the model rate, the tail, the
 design constants of :mod:`clm_core.freefield.model` (their values at run
-time: a test that changes one gets its own entries), and the code revision: the SHA-256 of the source of every module that computes
-them (:data:`SOURCES`), so an edit of the method invalidates every entry.
+time: a test that changes one gets its own entries), and the code
+revision: the SHA-256 of the source of every module that computes them
+(:data:`SOURCES`), so an edit of the method invalidates every entry.
 Floats enter by ``repr`` (exact round trip), so equal inputs give equal
 keys and any change of a value gives a new key.
 
@@ -126,7 +127,8 @@ def store(key: str, text: str, arrays: dict[str, Any]) -> Path | None:
         fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".npz", dir=d)
         try:
             with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, key=np.array(text), **{name: np.asarray(arrays[name]) for name in ARRAYS})
+                members: dict[str, Any] = {name: np.asarray(arrays[name]) for name in ARRAYS}
+                np.savez(fh, key=np.array(text), **members)
             os.replace(tmp, d / f"{key}.npz")
         finally:
             if os.path.exists(tmp):

@@ -140,8 +140,9 @@ def read_demo_bag(bag: str | Path) -> DemoRecord:
     dx = np.diff(xg)
     spacing = round(float(np.nanmedian(dx)), 9) if np.isfinite(dx).any() else 0.6
     dt = step * 1e-9
+    wt = np.asarray((np.asarray(w_t, dtype=np.int64) - base) * 1e-9, dtype=np.float64)
     return DemoRecord(t=(st[0] - base) * 1e-9 + dt * np.arange(n), dt=dt, first_sleeper=gmin, soil_force=F,
-                      rail_deflection=W, spacing=spacing, wheel_t=(np.asarray(w_t, dtype=np.int64) - base) * 1e-9,
+                      rail_deflection=W, spacing=spacing, wheel_t=wt,
                       wheel_deflection=np.asarray(w_d), interpolated=int(n - have.sum()))
 
 
@@ -201,8 +202,8 @@ def demo_receivers(out: str | Path, distances: tuple[float, ...] = (8.0, 16.0, 3
     res = free_field(soil, receivers, rec.t, first, F, rec.spacing, contact_length=track.contact_length,
                      contact_width=track.contact_width, influence_length=influence_length)
     build = time.perf_counter() - t_build
-    entry = write_receiver_outputs(res, soil.name, d,
-                                   title=f"clm demo: free-field vertical velocity, soil '{soil.name}' (two-step method)")
+    title = f"clm demo: free-field vertical velocity, soil '{soil.name}' (two-step method)"
+    entry = write_receiver_outputs(res, soil.name, d, title=title)
     _rail_spectra(rec, d)
     entry.update({"frames_interpolated": rec.interpolated, "free_field_s": round(build, 3),
                   "wall_s": round(time.perf_counter() - tic, 3)})

@@ -222,7 +222,9 @@ def _summary_table(path: Path) -> str:
 def _receivers_table(data: dict[str, Any]) -> str:
     """The free-field receivers of a summary (its ``receivers`` entry): PPV, KB_F,max, dominant band, L_v per band."""
     entry = data.get("receivers")
-    rows = entry.get("receivers") if isinstance(entry, dict) else None
+    if not isinstance(entry, dict):
+        return ""
+    rows = entry.get("receivers")
     if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) for r in rows):
         return ""
     bands = list(rows[0].get("lv_db_re_5e-8_m_per_s", {}))

@@ -57,4 +57,4 @@ def moving_window_forces(n: int, dt: float, speed: float = 60.0, n_window: int =
     xs = (first[:, None] + np.arange(n_window)[None, :]) * spacing
     F = load * np.maximum(0.0, 1.0 - np.abs(xs - xw[:, None]) / spacing) + ripple * np.sin(2 * np.pi * ripple_hz * t)[
         :, None]
-    return t, first, F
+    return np.asarray(t, dtype=np.float64), first, np.asarray(F, dtype=np.float64)

@@ -49,12 +49,12 @@ def test_every_input_changes_the_key() -> None:
                                        xi=lay.xi),), name=p.name)
     others = [
         fcache.model_key(softer, np.array(REC), **base)[0],
-        fcache.model_key(p, np.array(REC) + [[0.0, 1e-9], [0.0, 0.0]], **base)[0],
+        fcache.model_key(p, np.array(REC) + np.array([[0.0, 1e-9], [0.0, 0.0]]), **base)[0],
         fcache.model_key(p, np.array(REC), **{**base, "dt": 1e-3})[0],
         fcache.model_key(p, np.array(REC), **{**base, "band": 41.0})[0],
         fcache.model_key(p, np.array(REC), **{**base, "tail": 0.25})[0],
     ]
-    assert len(set(others + [k0])) == len(others) + 1
+    assert len({*others, k0}) == len(others) + 1
     # the code revision is part of the key text
     assert fcache.code_revision() in fcache.model_key(p, np.array(REC), **base)[1]
 
@@ -88,7 +88,7 @@ def test_j0_matvec_equals_the_table_product() -> None:
 
 @pytest.mark.parametrize("profile", ["mevergnies", "haren"])
 def test_shared_contour_equals_own_contour(profile: str) -> None:
-    """A frequency integrated on the top frequency's ellipse equals its own ellipse (a different path, same integral)."""
+    """A frequency on the top frequency's ellipse equals its own ellipse (a different path, the same integral)."""
     p = load_profile(profile)
     wide = KernelEngine(p, 40.0, 0.1, 100.0)  # f_max 100 Hz: 30 and 60 Hz on the 100-Hz ellipse
     for f in (30.0, 60.0):

@@ -42,7 +42,7 @@ def test_ten_car_thalys_runs_with_the_automatic_window(start: float) -> None:
 
 def test_simulate_ten_car_thalys_with_receivers(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    r = run_clm(["simulate", "--vehicle", "thalys", "--cars", "10", "--duration", "0.05", "--out", str(out),
+    r = run_clm(["simulate", "--vehicle", "thalys", "--cars", "10", "--duration", "0.3", "--out", str(out),
                  "--receivers", "8,16"])
     assert r.returncode == 0, r.stderr
     s = json.loads((out / "summary.json").read_text())

@@ -24,9 +24,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from clm_core.freefield import model as ff_model
-
 from clm_core.freefield import FreeFieldModel, receiver_velocity
+from clm_core.freefield import model as ff_model
 from clm_core.freefield.reference import moving_load_velocity
 from clm_core.profile import load_profile
 
