@@ -26,6 +26,7 @@ import numpy as np
 
 from clm_core.freefield import FreeFieldModel, ReceiverStream, receiver_velocity
 from clm_core.profile import load_profile
+from clm_core.synthetic.window import moving_window_forces
 
 
 def main() -> int:
@@ -52,13 +53,7 @@ def main() -> int:
     x_start, x_end = model.sleeper_positions[0] + half, model.sleeper_positions[-1] - half
     seconds = a.seconds if a.seconds is not None else (x_end - x_start) / speed
     n = int(round(seconds / dt))
-    t = np.arange(n) * dt
-    xw = x_start + speed * t
-    first = np.floor(xw / d).astype(np.int64) - N // 2
-    F = np.zeros((n, N))
-    for i in range(n):
-        xs = (first[i] + np.arange(N)) * d
-        F[i] = 85e3 * np.maximum(0.0, 1.0 - np.abs(xs - xw[i]) / d) + 300.0 * np.sin(2 * np.pi * 30 * t[i])
+    t, first, F = moving_window_forces(n, dt, speed, N, d, x_start)
     idx = first[:, None] + np.arange(N)[None, :]
     rtfs = []
     for k in range(a.repeat):

@@ -102,17 +102,6 @@ def _floats(text: str, what: str) -> Any:
     return vals
 
 
-def _window_size(span_bays: float, lead: int | None) -> int:
-    """Smallest window >= 61 holding a wheel set spanning ``span_bays`` with the default lead and margin."""
-    n = 61
-    while True:
-        ld = n // 3 if lead is None else lead
-        margin = max(2, min(10, n // 6))
-        if n - 1 - ld - margin >= span_bays + 1:  # + 1: wheels anywhere within a bay
-            return n
-        n += 2
-
-
 def run(args: argparse.Namespace) -> int:
     """Moving wheel loads in the time domain (streaming, moving window).
 
@@ -176,7 +165,9 @@ def _run_loads(args: argparse.Namespace, params: Any, d_out: Path, t_setup: floa
     if not (math.isfinite(duration) and duration > 0):
         raise InputError(f"--duration {duration}: must be > 0 s")
 
-    n_sleepers = args.n_sleepers if args.n_sleepers is not None else _window_size(span_bays, args.lead_sleepers)
+    from clm_core.vehicle.coupled import window_size
+
+    n_sleepers = args.n_sleepers if args.n_sleepers is not None else window_size(span_bays, args.lead_sleepers)
     lead = n_sleepers // 3 if args.lead_sleepers is None else int(args.lead_sleepers)
     front0 = float(np.nanmax(P0)) if np.isfinite(P0).any() else float(args.start)
     centre = front0 - ((n_sleepers - 1) / 2 - lead) * d

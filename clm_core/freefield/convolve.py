@@ -91,11 +91,16 @@ def receiver_velocity(model: FreeFieldModel, t: ArrayLike, first_sleeper: ArrayL
     if not np.allclose(steps, model.dt, rtol=1e-6, atol=0.0):
         raise InputError(f"t: steps in [{steps.min():g}, {steps.max():g}] s; the model needs uniform "
                          f"dt = {model.dt:g} s")
+    M = model.decimation
+    n_out = (tt.size - 1) // M + 1
+    if n_out - model.delay < 2:
+        need = (model.delay + 1) * model.model_dt
+        raise InputError(f"t: a record of {tt[-1] - tt[0]:.4g} s gives no receiver velocity: the filters' delay is "
+                         f"{model.delay} model steps ({model.delay * model.model_dt:.4g} s); record more than "
+                         f"{need:.4g} s")
     F = zone_forces(model, first_sleeper, soil_force)
     e = np.diff(F, axis=1, prepend=F[:, :1])
-    M = model.decimation
     c = model.decimation_taps
-    n_out = (tt.size - 1) // M + 1
     nf = int(2 ** math.ceil(math.log2(tt.size + c.size)))
     full = np.fft.irfft(np.fft.rfft(e, n=nf, axis=1) * np.fft.rfft(c, n=nf)[None, :], n=nf, axis=1)
     b = full[:, : (n_out - 1) * M + 1: M]

@@ -49,8 +49,8 @@ model step is Delta = M dt (f_s = 1 / Delta, about ``model_rate`` = 250 Hz):
    response of the velocity FIR: g[k] = sum_{i<=k} h[i], h = irfft of
    H_jr(f_k) T(f_k) on f_k = k f_s / N (N >= 2 L), T a cosine taper from
    ``band`` to 1.25 ``band`` (zero above, so H is never needed beyond the
-   Nyquist frequency), delayed by D = ceil(3 f_s / ``band``) model steps
-   (the zero-phase taper's precursor, about 3 periods of the band limit,
+   Nyquist frequency), delayed by D = ceil(6 f_s / ``band``) model steps
+   (the zero-phase taper's precursor, about 6 periods of the band limit,
    then lies at positive lags instead of being cut off) and truncated to
    its first L taps (``memory`` = the longest travel time
    r_max / (0.87 c_s,min) + ``tail``, plus D). The few taps left beyond
@@ -63,7 +63,7 @@ model step is Delta = M dt (f_s = 1 / Delta, about ``model_rate`` = 250 Hz):
 Outputs: v_r[m] is the velocity at t_0 + (m - D) Delta; the offline record
 starts at t_0 (the first D outputs precede the first input and are dropped)
 and ends D steps before the last input; the stream returns the velocity of
-t - D Delta with the frame of time t (a latency of D Delta, 32 ms at the
+t - D Delta with the frame of time t (a latency of D Delta, 60 ms at the
 default 100 Hz band and 250 Hz model rate). Sleepers farther than
 ``influence_length`` along the track from a receiver are left out for that
 receiver, and those in its last 30 % are faded out by a cosine weight, so
@@ -84,6 +84,7 @@ from scipy import signal, sparse
 from clm_core.arrays import Array, CArray, IntArray
 from clm_core.checks import positive
 from clm_core.errors import InputError, ParameterError
+from clm_core.freefield import cache as fcache
 from clm_core.halfspace.bem import rect_inverse_distance
 from clm_core.halfspace.green import KernelEngine, lagrange_weights
 from clm_core.profile import SoilProfile
@@ -99,8 +100,10 @@ POINTS_PER_WAVELENGTH = 3.0
 DR_PER_WAVELENGTH = 16.0
 #: Part of the influence length over which the sources are faded out (cosine) towards its end.
 EDGE_FRACTION = 0.3
-#: Delay of the FIR filters in periods of the band limit (keeps the band limit's precursor causal).
-PRECURSOR_CYCLES = 3.0
+#: Delay of the FIR filters in periods of the band limit (keeps the band limit's precursor causal). The precursor
+#: left out is the error that converges with it: moving-load check at 8 m, 2.26 % (3 periods), 1.70 % (4), 1.93 %
+#: (5), 1.66 % (6), 1.69 % (8), 1.58 % (12); docs/validation.md.
+PRECURSOR_CYCLES = 6.0
 
 
 def receivers_from_distances(distances: ArrayLike, x: float = 0.0) -> Array:
@@ -231,6 +234,10 @@ class FreeFieldModel:
         Target model rate [Hz]; the model step is a whole number M of input steps.
     tail : float
         Memory kept after the slowest arrival [s].
+    cache : bool
+        Read the filters from, and write them to, the on-disk cache
+        (:mod:`clm_core.freefield.cache`, keyed by every input above and the
+        code revision); False: always build them.
 
     Attributes
     ----------
@@ -242,6 +249,8 @@ class FreeFieldModel:
         M (input steps per model step).
     leakage : float
         max |h| over the dropped taps / max |h| (non-causal leakage and truncation) [-].
+    cached : bool
+        The filters were read from the cache (``cache_key`` names the entry).
     """
 
     def __init__(
@@ -257,6 +266,7 @@ class FreeFieldModel:
         band: float = 100.0,
         model_rate: float = 250.0,
         tail: float = 0.25,
+        cache: bool = True,
     ) -> None:
         rec = np.asarray(receivers, dtype=float)
         if rec.ndim != 2 or rec.shape[1] != 2 or rec.shape[0] == 0:
@@ -276,6 +286,7 @@ class FreeFieldModel:
                 raise ParameterError(f"{name} = {v}: must be >= 0 [m]")
         self.contact_length = float(contact_length)
         self.contact_width = float(contact_width)
+        self.model_rate = float(model_rate)
         self.decimation = max(1, int(math.floor(1.0 / (self.dt * model_rate) + 1e-9)))
         self.model_dt = self.decimation * self.dt
         fs = 1.0 / self.model_dt
@@ -288,7 +299,26 @@ class FreeFieldModel:
         self.decimation_taps = decimation_filter(self.sos, self.decimation)
         self._geom = self._zone()
         self.first_sleeper = self._geom.j0
-        self.step_response, self.leakage, self.n_fir = self._design()
+        self.cached = False
+        key, text = fcache.model_key(
+            self.profile, self.receivers, spacing=self.spacing, dt=self.dt, contact_length=self.contact_length,
+            contact_width=self.contact_width, influence_length=self.influence_length, band=self.band,
+            model_rate=self.model_rate, tail=self.tail, band_order=BAND_ORDER,
+            points_per_wavelength=POINTS_PER_WAVELENGTH, dr_per_wavelength=DR_PER_WAVELENGTH,
+            edge_fraction=EDGE_FRACTION, precursor_cycles=PRECURSOR_CYCLES)
+        self.cache_key = key
+        hit = fcache.load(key, text) if cache else None
+        if hit is not None and hit["step_response"].shape[:2] == (self.n_zone, rec.shape[0]):
+            self.step_response = np.asarray(hit["step_response"], dtype=np.float64)
+            self.leakage, self.n_fir, self.delay = float(hit["leakage"]), int(hit["n_fir"]), int(hit["delay"])
+            self.freqs, self.transfer = hit["freqs"], hit["transfer"]
+            self.cached = True
+        else:
+            self.step_response, self.leakage, self.n_fir = self._design()
+            if cache:
+                fcache.store(key, text, {"step_response": self.step_response, "freqs": self.freqs,
+                                         "transfer": self.transfer, "leakage": self.leakage, "n_fir": self.n_fir,
+                                         "delay": self.delay})
 
     # ------------------------------------------------------------------ geometry
     def _zone(self) -> _Geometry:

@@ -23,7 +23,7 @@ import numba as nb
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["j0_complex", "j0_outer"]
+__all__ = ["j0_complex", "j0_matvec", "j0_outer"]
 
 _SWITCH = 12.0
 
@@ -87,6 +87,66 @@ def _j0_flat_kernel(z: NDArray[np.complex128], out: NDArray[np.complex128]) -> N
         out[i] = _j0_scalar(z[i])
 
 
+@nb.njit(cache=True, fastmath=False)
+def _j0_hankel(z: complex, amp: complex) -> complex:
+    """Hankel's expansion of J0(z) for |z| >= _SWITCH, given amp = sqrt(2 / (pi z)) [-].
+
+    cos and sin of z - pi/4 from one complex exponential; the series P, Q
+    stop at the first term below 1e-17 or at the smallest term (optimal
+    truncation), as in :func:`_j0_scalar`.
+    """
+    iz8 = 1.0 / (8.0 * z)
+    p = 1.0 + 0.0j
+    qq = 0.0 + 0.0j
+    a = 1.0 + 0.0j
+    best = 1e300
+    for k in range(1, 60):
+        a = a * ((2 * k - 1) * (2 * k - 1)) / k * iz8
+        mag = abs(a)
+        if mag > best:
+            break
+        best = mag
+        r = k % 4
+        if r == 1:
+            qq -= a
+        elif r == 2:
+            p -= a
+        elif r == 3:
+            qq += a
+        else:
+            p += a
+        if mag < 1e-17:
+            break
+    e = np.exp(1j * (z - 0.25 * math.pi))
+    ei = 1.0 / e
+    cos = 0.5 * (e + ei)
+    sin = -0.5j * (e - ei)
+    out: complex = amp * (p * cos - qq * sin)
+    return out
+
+
+@nb.njit(cache=True, parallel=True)
+def _j0_matvec_kernel(k: NDArray[np.complex128], amp_k: NDArray[np.complex128], r: NDArray[np.float64],
+                      f: NDArray[np.complex128], out: NDArray[np.complex128]) -> None:
+    nr = r.shape[0]
+    nk = k.shape[0]
+    for i in nb.prange(nr):
+        ri = r[i]
+        acc = 0.0 + 0.0j
+        if ri > 0.0:
+            amp_r = 1.0 / math.sqrt(ri)
+            for j in range(nk):
+                z = k[j] * ri
+                if abs(z) < _SWITCH:
+                    acc += _j0_scalar(z) * f[j]
+                else:
+                    acc += _j0_hankel(z, amp_k[j] * amp_r) * f[j]
+        else:
+            for j in range(nk):
+                acc += f[j]
+        out[i] = acc
+
+
 def j0_complex(z: NDArray[np.complex128]) -> NDArray[np.complex128]:
     """J0(z) for complex ``z`` with Re z >= 0 (any shape) [-]."""
     zz = np.ascontiguousarray(np.asarray(z, dtype=np.complex128).ravel())
@@ -101,4 +161,29 @@ def j0_outer(r: NDArray[np.float64], k: NDArray[np.complex128]) -> NDArray[np.co
     kk = np.ascontiguousarray(np.asarray(k, dtype=np.complex128).ravel())
     out = np.empty((rr.shape[0], kk.shape[0]), dtype=np.complex128)
     _j0_outer_kernel(kk, rr, out)
+    return out
+
+
+def j0_matvec(r: NDArray[np.float64], k: NDArray[np.complex128], f: NDArray[np.complex128]) -> NDArray[np.complex128]:
+    """sum_j J0(k_j r_i) f_j for each r_i, shape (len(r),): ``j0_outer(r, k) @ f`` without the matrix.
+
+    Parameters
+    ----------
+    r : array_like
+        Radii >= 0 [m].
+    k : array_like of complex
+        Wavenumbers with Re k > 0 [1/m] (the contour of the wavenumber integral).
+    f : array_like of complex
+        Weights (quadrature weights times integrand), one per ``k``.
+    """
+    rr = np.ascontiguousarray(np.asarray(r, dtype=np.float64).ravel())
+    kk = np.ascontiguousarray(np.asarray(k, dtype=np.complex128).ravel())
+    ff = np.ascontiguousarray(np.asarray(f, dtype=np.complex128).ravel())
+    if ff.shape != kk.shape:
+        raise ValueError(f"j0_matvec: {ff.size} weights for {kk.size} wavenumbers")
+    out = np.empty(rr.shape[0], dtype=np.complex128)
+    amp = np.zeros_like(kk)  # sqrt(2 / (pi k)), used only where |k r| >= _SWITCH (so k != 0)
+    nz = kk != 0
+    amp[nz] = np.sqrt(2.0 / (math.pi * kk[nz]))
+    _j0_matvec_kernel(kk, amp, rr, ff, out)
     return out

@@ -64,7 +64,7 @@ from scipy import sparse, special
 from clm_core.arrays import Array, CArray
 from clm_core.checks import nonnegative, positive
 from clm_core.errors import ParameterError
-from clm_core.halfspace.bessel import j0_outer
+from clm_core.halfspace.bessel import j0_matvec, j0_outer
 from clm_core.profile import Layer, SoilProfile
 
 __all__ = [
@@ -420,6 +420,7 @@ class KernelEngine:
         self.k_real = x
         self.w_real = w
         self._J0_real: Array | None = None
+        self._ellipse_cache: tuple[int, CArray, CArray, CArray] | None = None
 
     @property
     def J0_real(self) -> Array:
@@ -427,6 +428,50 @@ class KernelEngine:
         if self._J0_real is None:
             self._J0_real = np.asarray(special.j0(np.outer(self.r, self.k_real)), dtype=np.float64)
         return self._J0_real
+
+    def _ellipse_shape(self, omega: float) -> tuple[int, float, float]:
+        """(first real panel p_start, height, panel length) of the half-ellipse at ``omega`` > 0 [rad/s]."""
+        ks_max = omega / self.profile.min_cs
+        k_max = default_k_max(self.profile, omega, self.r_top, self.k_factor)
+        p_end = min(self.n_panels, int(math.ceil(k_max / self.panel)))
+        p_start = max(min(int(math.ceil(1.5 * ks_max / self.panel)), p_end - 1), 1)
+        k_nom = 1.5 * ks_max
+        s = 2.0 * omega / self.profile.top.cs
+        height = min(0.25 * k_nom, 2.5 / self.r_top, 0.5 * s)
+        panel_len = min(2.5 * height, self.panel * self.resolution, k_nom / 6.0) / self.resolution
+        return p_start, height, panel_len
+
+    def _ellipse(self, p_start: int, height: float, panel_len: float) -> tuple[CArray, CArray]:
+        """Nodes k and weights dk of the half-ellipse from 0 to the panel edge ``p_start`` (composite Gauss)."""
+        k_e = float(self.edges[p_start])
+        arc = 0.5 * math.pi * math.sqrt(0.5 * ((0.5 * k_e) ** 2 + height**2)) * 2.0
+        n_ell = max(6, math.ceil(arc / panel_len))
+        t, wt = _gl_panels(0.0, 1.0, n_ell)
+        ke = k_e * 0.5 * (1.0 - np.cos(math.pi * t)) + 1j * height * np.sin(math.pi * t)
+        dk = k_e * 0.5 * math.pi * np.sin(math.pi * t) + 1j * height * math.pi * np.cos(math.pi * t)
+        return np.asarray(ke, dtype=np.complex128), np.asarray(wt * dk, dtype=np.complex128)
+
+    def _contour(self, omega: float) -> tuple[int, CArray, CArray, CArray | None]:
+        """The complex part of the path at ``omega`` > 0: (p_start, k, weights, J0(k r) table or None).
+
+        Every frequency whose ellipse has the height and panel length of the
+        top frequency's (in practice all but the lowest few hertz) integrates
+        on the top frequency's ellipse (it reaches beyond their poles too,
+        lies below their branch points i s, and is resolved as finely), so its
+        J0(k r) table is computed once (:attr:`ellipse_table`) and each such
+        frequency costs one matrix-vector product; the others get their own
+        (short) ellipse, summed by :func:`~clm_core.halfspace.bessel.j0_matvec`.
+        """
+        shape = self._ellipse_shape(omega)
+        top = self._ellipse_shape(2.0 * math.pi * self.f_max) if self.f_max > 0 else None
+        if top is not None and math.isclose(shape[1], top[1], rel_tol=1e-12) and \
+                math.isclose(shape[2], top[2], rel_tol=1e-12):
+            if self._ellipse_cache is None:
+                ke, w = self._ellipse(*top)
+                self._ellipse_cache = (top[0], ke, w, j0_outer(self.r, ke))
+            return self._ellipse_cache
+        ke, w = self._ellipse(*shape)
+        return shape[0], ke, w, None
 
     def __call__(self, omega: float) -> RadialKernel:
         """The radial kernel u_z(r)/P at circular frequency ``omega`` [rad/s]."""
@@ -447,21 +492,12 @@ class KernelEngine:
         if omega == 0.0:
             p_start = 0
         else:
-            ks_max = omega / profile.min_cs
-            p_start = min(int(math.ceil(1.5 * ks_max / self.panel)), p_end - 1)
-            p_start = max(p_start, 1)
-            k_e = float(self.edges[p_start])
-            k_nom = 1.5 * ks_max
-            height = min(0.25 * k_nom, 2.5 / self.r_top, 0.5 * s)
-            arc = 0.5 * math.pi * math.sqrt(0.5 * ((0.5 * k_e) ** 2 + height**2)) * 2.0
-            panel_len = min(2.5 * height, self.panel * self.resolution, k_nom / 6.0) / self.resolution
-            n_ell = max(6, math.ceil(arc / panel_len))
-            t, wt = _gl_panels(0.0, 1.0, n_ell)
-            ke = k_e * 0.5 * (1.0 - np.cos(math.pi * t)) + 1j * height * np.sin(math.pi * t)
-            dk = k_e * 0.5 * math.pi * np.sin(math.pi * t) + 1j * height * math.pi * np.cos(math.pi * t)
+            p_start, ke, wdk, Jell = self._contour(omega)
             G = surface_flexibility_k(profile, ke, omega)
             R = G - (1.0 - top.nu) / (mu1 * ke) - A / (ke**2 + s**2) ** 1.5
-            gs += j0_outer(self.r, ke) @ (R * ke * wt * dk / (2.0 * math.pi))
+            f_ell = R * ke * wdk / (2.0 * math.pi)
+            gs += (Jell @ f_ell) if Jell is not None else j0_matvec(self.r, ke, f_ell)
+            p_end = max(p_end, p_start + 1)
         sl = slice(p_start * _GL_N, p_end * _GL_N)
         kr = self.k_real[sl]
         if kr.size:

@@ -34,7 +34,7 @@ from clm_core.arrays import Array
 from clm_core.errors import InputError
 from clm_core.profile import Layer, SoilProfile, load_profile
 
-__all__ = ["parse_receivers", "receiver_soil", "receivers_for_run"]
+__all__ = ["parse_receivers", "receiver_soil", "receivers_for_run", "write_receiver_outputs"]
 
 
 def receiver_soil(spec: str | None, run_soil: str | None) -> SoilProfile:
@@ -128,8 +128,6 @@ def receivers_for_run(args: Any, params: Any, d_out: Path) -> dict[str, Any] | N
     if not (getattr(args, "receivers", None) or getattr(args, "receivers_file", None)):
         return None
     from clm_core.freefield import free_field
-    from clm_core.io.files import write_json, write_npz
-    from clm_core.outputs.plots.receivers import plot_receivers
     from clm_core.progress import Progress
 
     t, first, F, d, span = _run_forces(d_out)
@@ -142,11 +140,36 @@ def receivers_for_run(args: Any, params: Any, d_out: Path) -> dict[str, Any] | N
         res = free_field(soil, rec, t, first, F, d, contact_length=track.contact_length,
                          contact_width=track.contact_width, influence_length=float(args.receiver_influence))
         bar.update(1)
+    return write_receiver_outputs(res, soil.name, d_out)
+
+
+def write_receiver_outputs(res: Any, soil_name: str, d_out: Path, title: str | None = None) -> dict[str, Any]:
+    """Write ``receivers.npz``, ``receivers.csv``, ``receivers.png`` and the ``receivers`` entry of ``summary.json``.
+
+    Parameters
+    ----------
+    res : FreeFieldResult
+        From :func:`clm_core.freefield.free_field`.
+    soil_name : str
+        Name of the soil profile (for the summary and the figure title).
+    d_out : Path
+        Output directory (its ``summary.json``, when present, gets the entry).
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    dict
+        The summary entry (module docstring); the per-receiver figures are also printed.
+    """
     from clm_core.freefield import kb_f
+    from clm_core.io.files import write_json, write_npz
+    from clm_core.outputs.plots.receivers import plot_receivers
 
     m = res.measures
+    rec = res.receivers
     write_npz(d_out / "receivers.npz", {
-        "t": res.t, "velocity": res.velocity, "receivers": res.receivers,
+        "t": res.t, "velocity": res.velocity, "receivers": rec,
         "kb_f": kb_f(res.velocity, res.model.model_dt),
         "band_centres_hz": m.band_centres_hz, "lv_db": m.lv_db, "ppv_mm_per_s": m.ppv_mm_s,
         "kb_fmax_mm_per_s": m.kb_fmax_mm_s,
@@ -155,11 +178,11 @@ def receivers_for_run(args: Any, params: Any, d_out: Path) -> dict[str, Any] | N
     np.savetxt(d_out / "receivers.csv", np.column_stack([res.t, res.velocity.T]), delimiter=",", header=head,
                comments="", fmt="%.9g")
     plot_receivers(res, d_out / "receivers.png",
-                   title=f"Free-field vertical velocity, soil '{soil.name}' (two-step method)")
+                   title=title or f"Free-field vertical velocity, soil '{soil_name}' (two-step method)")
     per_receiver = res.summary()
     entry: dict[str, Any] = {
-        "soil": soil.name, "influence_length_m": res.model.influence_length, "band_limit_hz": res.model.band,
-        "model_step_s": res.model.model_dt,
+        "soil": soil_name, "influence_length_m": res.model.influence_length, "band_limit_hz": res.model.band,
+        "model_step_s": res.model.model_dt, "filters_from_cache": bool(res.model.cached),
         "kb_filter": "DIN 4150-2: KB high-pass f0 = 5.6 Hz, running rms FAST tau = 0.125 s",
         "lv_reference_m_per_s": 5e-8, "receivers": per_receiver,
     }

@@ -100,10 +100,17 @@ CAPTIONS: dict[str, str] = {
                            "(both downwards).",
     "receptance.png": "Track receptances H_i1 (rail above sleeper i over a force above sleeper 1): amplitude and "
                       "phase; peaks labelled.",
+    "receivers.png": "Free-field vertical velocity at the receivers (two-step method: the sleeper soil forces on the "
+                     "layered half-space), peak marked (top); one-third-octave velocity levels L_v, 1-80 Hz, dB re "
+                     "5e-8 m/s (bottom). The table above gives PPV, KB_F,max (DIN 4150-2) and the levels.",
+    "rail_deflection_spectra.png": "Amplitude spectra of the rail deflection (mean removed) under the first wheel "
+                                   "and above the sleeper of the largest deflection.",
+    "rail_deflection_third_octave.png": "One-third-octave band rms of the rail deflection (mean removed).",
     "chain.png": "Soil chain: its impedance against the closed forms of the paper (Eqs. 16, 18).",
 }
 _ORDER = ("wheel_loads.png", "soil_forces.png", "simulate.png", "spectra.png", "third_octave.png",
-          "sleeper_soil_forces.png", "rail_deflection.png")
+          "sleeper_soil_forces.png", "rail_deflection.png", "rail_deflection_spectra.png",
+          "rail_deflection_third_octave.png", "receivers.png")
 
 
 @dataclass
@@ -212,6 +219,33 @@ def _summary_table(path: Path) -> str:
     return f"<table>{body}{more}</table>"
 
 
+def _receivers_table(data: dict[str, Any]) -> str:
+    """The free-field receivers of a summary (its ``receivers`` entry): PPV, KB_F,max, dominant band, L_v per band."""
+    entry = data.get("receivers")
+    if not isinstance(entry, dict):
+        return ""
+    rows = entry.get("receivers")
+    if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) for r in rows):
+        return ""
+    bands = list(rows[0].get("lv_db_re_5e-8_m_per_s", {}))
+    head = ("<tr><th>receiver x [m]</th><th>y [m]</th><th>PPV [mm/s]</th><th>KB<sub>F,max</sub> [mm/s]</th>"
+            "<th>dominant 1/3-octave band [Hz]</th></tr>")
+    body = "".join(
+        f'<tr><td class="v">{_fmt(r.get("x_m"))}</td><td class="v">{_fmt(r.get("y_m"))}</td>'
+        f'<td class="v">{_headline_value(r.get("ppv_mm_per_s"), 1.0)}</td>'
+        f'<td class="v">{_headline_value(r.get("kb_fmax_mm_per_s"), 1.0)}</td>'
+        f'<td class="v">{_fmt(r.get("dominant_third_octave_hz"))}</td></tr>' for r in rows)
+    lv_head = "<tr><th>L<sub>v</sub> [dB re 5e-8 m/s], band [Hz]</th>" + "".join(
+        f"<th>{html.escape(b)}</th>" for b in bands) + "</tr>"
+    lv_body = "".join(
+        f'<tr><td>y = {_fmt(r.get("y_m"))} m</td>' + "".join(
+            f'<td class="v">{"" if v is None else f"{v:.1f}"}</td>'
+            for v in r.get("lv_db_re_5e-8_m_per_s", {}).values()) + "</tr>" for r in rows)
+    return (f"<p>Free-field receivers (soil {html.escape(str(entry.get('soil', '?')))}; "
+            f"{html.escape(str(entry.get('kb_filter', '')))}):</p>"
+            f"<table>{head}{body}</table><table>{lv_head}{lv_body}</table>")
+
+
 def _caption(rel: str) -> str:
     name = Path(rel).name
     text = CAPTIONS.get(name)
@@ -246,6 +280,7 @@ def render_index(root: str | Path, title: str | None = None) -> str:
         parts.append(f'<h2 id="s{i}">{html.escape(s.rel)}</h2>')
         for rel in s.summaries:
             parts.append(_summary_table(r / rel))
+            parts.append(_receivers_table(_read_summary(r / rel) or {}))
             parts.append(f'<p class="files">every value: <a href="{_href(rel)}">{html.escape(rel)}</a></p>')
         if s.figures:
             parts.append('<div class="figs">')

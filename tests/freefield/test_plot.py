@@ -9,7 +9,7 @@ import numpy as np
 from clm_core.freefield import FreeFieldResult, measures, receiver_velocity
 from clm_core.freefield.model import FreeFieldModel
 from clm_core.outputs.plots.receivers import plot_receivers
-from tests.freefield.conftest import moving_window_forces
+from clm_core.synthetic.window import moving_window_forces
 
 
 def test_receivers_png(small_model: FreeFieldModel, tmp_path: Path) -> None:

@@ -8,7 +8,7 @@ from scipy import signal
 
 from clm_core.errors import InputError
 from clm_core.freefield import FreeFieldModel, ReceiverStream, receiver_velocity
-from tests.freefield.conftest import moving_window_forces
+from clm_core.synthetic.window import moving_window_forces
 
 
 def _stream(model: FreeFieldModel, t: np.ndarray, first: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -75,3 +75,13 @@ def test_offline_refuses_wrong_step(small_model: FreeFieldModel) -> None:
     t = np.arange(10) * 2 * small_model.dt
     with pytest.raises(InputError, match="uniform dt"):
         receiver_velocity(small_model, t, np.zeros(10, int), np.zeros((10, 3)))
+
+
+def test_a_record_shorter_than_the_delay_is_refused_clearly(small_model: FreeFieldModel) -> None:
+    """The filters delay the output by D model steps: a shorter record has no velocity to give (named, with D)."""
+    n = small_model.delay * small_model.decimation  # D model steps of input: D outputs, all before the first input
+    t, first, F = moving_window_forces(n, small_model.dt)
+    with pytest.raises(InputError, match=f"delay is {small_model.delay} model steps"):
+        receiver_velocity(small_model, t, first, F)
+    t, first, F = moving_window_forces(n + 2 * small_model.decimation, small_model.dt)
+    assert receiver_velocity(small_model, t, first, F).velocity.shape[1] >= 2

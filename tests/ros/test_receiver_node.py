@@ -19,6 +19,7 @@ import numpy as np
 from clm_core.freefield import FreeFieldModel, receiver_velocity
 from clm_core.params import model_from_settings
 from clm_core.profile import load_profile
+from clm_core.synthetic.window import moving_window_forces
 from tests.ros.conftest import RosPython
 
 N_FRAMES, DT, N_WIN = 600, 0.002, 61
@@ -30,6 +31,7 @@ import rclpy
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from builtin_interfaces.msg import Time
 from clm_msgs.msg import ReceiverVelocities, SleeperResponse
+from clm_core.synthetic.window import moving_window_forces
 
 n, dt, N = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
 rclpy.init()
@@ -46,12 +48,10 @@ while (pub.get_subscription_count() == 0 or node.count_publishers("receiver_velo
     if time.monotonic() > deadline:
         sys.exit("no receiver node")
 time.sleep(1.0)
+ts, firsts, Fs = moving_window_forces(n, dt, 40.0, N, 0.6, -6.0)
 for i in range(n):
-    t = i * dt
-    x = -6.0 + 40.0 * t
-    first = int(np.floor(x / 0.6)) - N // 2
+    t, first, F = float(ts[i]), int(firsts[i]), Fs[i]
     xs = (first + np.arange(N)) * 0.6
-    F = 85e3 * np.maximum(0.0, 1.0 - np.abs(xs - x) / 0.6) + 300.0 * np.sin(2 * np.pi * 30 * t)
     m = SleeperResponse()
     ns = int(round(t * 1e9))
     m.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
@@ -74,14 +74,7 @@ rclpy.shutdown()
 
 
 def _frames() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    t = np.arange(N_FRAMES) * DT
-    x = -6.0 + 40.0 * t
-    first = np.floor(x / 0.6).astype(np.int64) - N_WIN // 2
-    F = np.zeros((N_FRAMES, N_WIN))
-    for i in range(N_FRAMES):
-        xs = (first[i] + np.arange(N_WIN)) * 0.6
-        F[i] = 85e3 * np.maximum(0.0, 1.0 - np.abs(xs - x[i]) / 0.6) + 300.0 * np.sin(2 * np.pi * 30 * t[i])
-    return t, first, F
+    return moving_window_forces(N_FRAMES, DT, 40.0, N_WIN, 0.6, -6.0)
 
 
 def test_receiver_node_equals_offline(ros_python: RosPython) -> None:

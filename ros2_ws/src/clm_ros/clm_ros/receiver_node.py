@@ -85,7 +85,8 @@ class ReceiverNode(Node):
         self.sub = self.create_subscription(SleeperResponse, "sleeper_response", self._on_frame, answers_qos())
         self._log.info(
             f"receiver node: {rec.shape[0]} receivers, soil '{soil.name}', {self.model.n_zone} sleepers in the zone, "
-            f"FIR {self.model.n_fir} taps at {1 / self.model.model_dt:g} Hz, latency {self.model.delay} steps")
+            f"FIR {self.model.n_fir} taps at {1 / self.model.model_dt:g} Hz, latency {self.model.delay} steps, filters "
+            f"{'read from the cache' if self.model.cached else 'built (now cached)'}")
 
     def _on_frame(self, msg: Any) -> None:
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
