@@ -182,8 +182,8 @@ def demo_receivers(out: str | Path, distances: tuple[float, ...] = (8.0, 16.0, 3
         The ``receivers`` entry written to ``summary.json`` (plus ``build_s``, ``wall_s``, ``frames_interpolated``).
     """
     from clm_core.freefield import free_field, receivers_from_distances
-    from clm_core.outputs.receivers import receiver_soil, write_receiver_outputs
     from clm_core.io.files import write_json
+    from clm_core.outputs.receivers import receiver_soil, write_receiver_outputs
     from clm_core.outputs.report_index import write_index
     from clm_core.params import load_track
 

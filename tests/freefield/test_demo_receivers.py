@@ -1,4 +1,4 @@
-"""The demo's receivers (clm_core.outputs.demo_receivers): a real bag in the demo's layout -> receivers, spectra, report."""
+"""The demo's receivers (clm_core.outputs.demo_receivers): a real bag in the demo's layout -> receivers, report."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 
 from clm_core.errors import InputError
 from clm_core.freefield import free_field, receivers_from_distances
-from clm_core.outputs.demo_receivers import demo_receivers, main, read_demo_bag
 from clm_core.io import messages as msgs
 from clm_core.io.bags import BagWriter
+from clm_core.outputs.demo_receivers import demo_receivers, main, read_demo_bag
 from clm_core.params import load_track
 from clm_core.profile import load_profile
 from clm_core.synthetic.window import moving_window_forces
