@@ -247,15 +247,16 @@ def lag_values(lag: LagSummary) -> dict[str, Any]:
 VALUE_LIMIT = 500
 
 
-def diagnostic_array(name: str, level: int, message: str, values: Mapping[str, Any], stamp: Any) -> DiagnosticArray:
+def diagnostic_array(name: str, level: bytes | int, message: str, values: Mapping[str, Any],
+                     stamp: Any) -> DiagnosticArray:
     """A ``DiagnosticArray`` with one status (the ``/diagnostics`` message of every clm node).
 
     Parameters
     ----------
     name : str
         Status name, ``<fully qualified node name>: <what>`` (the namespace tells a fleet's pairs apart).
-    level : int
-        ``DiagnosticStatus`` level (:data:`OK`, :data:`WARN`, :data:`ERROR`).
+    level : bytes or int
+        ``DiagnosticStatus`` level (:data:`OK`, :data:`WARN`, :data:`ERROR`: one byte; the message also takes 0-3).
     message : str
         One-line summary.
     values : mapping
@@ -272,7 +273,7 @@ def diagnostic_array(name: str, level: int, message: str, values: Mapping[str, A
     return arr
 
 
-def publish_status(node: Node, publisher: Publisher, name: str, level: int, message: str,
+def publish_status(node: Node, publisher: Publisher, name: str, level: bytes | int, message: str,
                    values: Mapping[str, Any]) -> None:
     """Publish :func:`diagnostic_array` on ``publisher``, stamped now on ``node``'s clock; best effort: a failure
     (the context is going down) is logged at debug level."""

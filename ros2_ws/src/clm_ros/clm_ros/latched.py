@@ -60,7 +60,7 @@ class LatchedStatus:
         self._pub = node.create_publisher(DiagnosticArray, topic, LATCHED_QOS)
         self._last: tuple[Any, ...] | None = None
 
-    def update(self, level: int, message: str, values: Mapping[str, Any]) -> bool:
+    def update(self, level: bytes | int, message: str, values: Mapping[str, Any]) -> bool:
         """Publish the state when it differs from the last one published; whether it was published.
 
         Best effort on the way down: a failure (the context is shutting down) is logged at debug level.

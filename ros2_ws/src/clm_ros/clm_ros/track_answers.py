@@ -103,7 +103,7 @@ class AnswerPath:
             self.new_stream = False
             if model.last_stamp_ns is not None:
                 self.model = model = model.renewed()
-                self.log.info("wheel_loads: a new stream (every publisher had left): the state restarts")
+                self.log.info("wheel_loads: a new stream (its source left or went quiet): the state restarts")
         self.lag.waiting(len(frames), frames[0].stamp_ns)
         try:
             results = respond(model, frames, [None] * len(frames), self.frame_id)
