@@ -126,14 +126,16 @@ def test_calibrate_service_parts(ts: Any) -> None:
         options_yaml="f_max: 2000.0\n",
         push_to_node=True,
         target_node="/clm_track",
+        request_id="batch-7 ü",
     )
     got = deserialize_message(bytes(ts.serialize_cdr(req, "clm_msgs/srv/Calibrate_Request")), Calibrate.Request)
-    assert (got.bag_path, got.method, got.options_yaml, got.push_to_node, got.target_node) == (
+    assert (got.bag_path, got.method, got.options_yaml, got.push_to_node, got.target_node, got.request_id) == (
         req.bag_path,
         req.method,
         req.options_yaml,
         req.push_to_node,
         req.target_node,
+        req.request_id,
     )
 
     res = Calibrate.Response(

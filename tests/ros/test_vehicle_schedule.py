@@ -17,10 +17,10 @@ import pytest
 
 from clm_core.io.messages import decode_wheel_loads, encode_wheel_rail_response
 from clm_core.io.timebase import NS, lag_figures
-from clm_core.settings import setting
 
 pytest.importorskip("clm_ros.vehicle_schedule", reason="clm_ros not installed")
 
+from clm_ros.parameters import lookup
 from clm_ros.vehicle_counts import Counts, diagnostics_values
 from clm_ros.vehicle_schedule import AnswerWatch, TrainRun, TrainSchedule, build_plan
 
@@ -30,7 +30,7 @@ MS = 1_000_000
 def run_settings(**over: object) -> dict[str, object]:
     names = ("vehicle", "cars", "speed", "duration", "rate", "dt", "start", "irregularity", "seed",
              "wavelength_band", "track", "soil", "model", "params_file", "max_feedback_delay")
-    values = {n: setting(n).default for n in names}
+    values = {n: lookup(n).default for n in names}
     values.update(duration=0.05, irregularity="none")
     values.update(over)
     return values

@@ -219,14 +219,15 @@ class VehicleNode(LifecycleNode):
 
     def _serve_wait(self) -> float:
         assert self.link is not None
-        start = self.link.start_due() if self.schedule.first_of_activation() else True
+        track = self.link.track_ready()  # the start signal is looked at (and readiness said) only after this
+        start = (self.link.start_due() if self.schedule.first_of_activation() else True) if track else False
         if start is None:  # the start signal not given yet: say once that this train is ready
             text = f"train {self.schedule.number + 1}: ready, waiting for the start signal"
             if self.status.text != text:
                 self.status.phase = "ready"
                 self._set_state(text, self.status.level)
                 self.status.phase = "wait"
-        if self.link.track_ready() and start:
+        if track and start:
             if self._warned:
                 self.log.info(f"{self.p('track_node') or 'a subscriber'} is there: train {self.schedule.number + 1}")
             self._start_train()
