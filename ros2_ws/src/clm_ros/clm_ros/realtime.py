@@ -37,7 +37,8 @@ from pathlib import Path
 
 from clm_ros.parameters import REALTIME_PRIORITY
 
-__all__ = ["MAX_PRIORITY", "NOT_APPLIED", "Scheduling", "apply_fifo", "release_fifo", "thread_scheduling"]
+__all__ = ["MAX_PRIORITY", "NORMAL_THREADS", "NOT_APPLIED", "Scheduling", "apply_fifo", "release_fifo",
+           "thread_scheduling"]
 
 #: Highest priority a node may ask for: the setting's bound (99 is left to the kernel's watchdogs).
 MAX_PRIORITY = int(REALTIME_PRIORITY.maximum or 0)
@@ -77,6 +78,14 @@ class Scheduling:
         return f"normal ({self.reason or 'realtime_priority = 0'})"
 
 
+#: Threads left under normal scheduling by :func:`apply_fifo` (prefixes of ``/proc/<pid>/task/<tid>/comm``): Fast DDS's
+#: asynchronous writer thread (``dds.asyn.<participant>.<n>``), which in synchronous publication mode only resends
+#: to reliable readers that missed samples, off the answer path. It waits for a writer's mutex in a ``try_lock``
+#: loop (rmw_fastrtps#666): under ``SCHED_FIFO`` it never lets the holder run on its core, and two such threads held
+#: both cores of the 2-core machine for the 600 s of a fleet's timeout (issue 21: ``clm fleet --trains 3`` 2 of 5
+#: quiet runs, each track node's ``dds.asyn.0.0`` at 97 % CPU from 1 s into the train, 340-1540 of 5001 messages).
+NORMAL_THREADS: tuple[str, ...] = ("dds.asyn",)
+
 #: A node's scheduling until :func:`clm_ros.node_main.run_node` has applied its ``realtime_priority``.
 NOT_APPLIED = Scheduling(0, 0, reason="not set by run_node")
 
@@ -84,6 +93,15 @@ NOT_APPLIED = Scheduling(0, 0, reason="not set by run_node")
 def _thread_ids() -> list[int]:
     """The ids of this process's threads now."""
     return sorted(int(p.name) for p in _TASKS.iterdir() if p.name.isdigit())
+
+
+def _stays_normal(tid: int) -> bool:
+    """Whether thread ``tid`` is one of :data:`NORMAL_THREADS` (False when it ended meanwhile)."""
+    try:
+        name = (_TASKS / str(tid) / "comm").read_text().strip()
+    except OSError:
+        return False
+    return name.startswith(NORMAL_THREADS)
 
 
 def thread_scheduling(pid: int | str = "self") -> dict[int, tuple[int, int]]:
@@ -116,6 +134,8 @@ def thread_scheduling(pid: int | str = "self") -> dict[int, tuple[int, int]]:
 def apply_fifo(priority: int) -> Scheduling:
     """Put every thread of this process under ``SCHED_FIFO`` at ``priority``, or leave them all as they are.
 
+    Threads named in :data:`NORMAL_THREADS` keep normal scheduling.
+
     Parameters
     ----------
     priority : int
@@ -142,6 +162,8 @@ def apply_fifo(priority: int) -> Scheduling:
     done: list[int] = []
     try:
         for tid in _thread_ids():
+            if _stays_normal(tid):
+                continue
             try:
                 os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
             except ProcessLookupError:
