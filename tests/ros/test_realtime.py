@@ -82,7 +82,7 @@ def test_every_thread_fifo_or_none_and_later_threads_inherit(ros_python) -> None
         assert sched == {(SCHED_OTHER, 0)}, got
 
 
-#: A child with a DDS participant and a reliable writer that asks for SCHED_FIFO 5; prints every thread's name and policy.
+#: A child with a DDS participant and a reliable writer asking for SCHED_FIFO 5; prints each thread's name and policy.
 APPLY_DDS = """\
 import json, os, rclpy
 from std_msgs.msg import Int64
@@ -97,8 +97,8 @@ for tid in thread_scheduling():
         names[tid] = open(f"/proc/self/task/{tid}/comm").read().strip()
     except OSError:
         pass
-print(json.dumps({"priority": outcome.priority, "sched": {names.get(int(t), "?"): s for t, s in thread_scheduling().items()
-                                                          if int(t) in names}}))
+sched = {names[t]: s for t, s in thread_scheduling().items() if t in names}
+print(json.dumps({"priority": outcome.priority, "sched": sched}))
 """
 
 
