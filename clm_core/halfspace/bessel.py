@@ -29,25 +29,15 @@ _SWITCH = 12.0
 
 
 @nb.njit(cache=True, fastmath=False)
-def _j0_scalar(z: complex) -> complex:
-    az = abs(z)
-    if az < _SWITCH:
-        q = -0.25 * z * z
-        term = 1.0 + 0.0j
-        s = term
-        m = 1
-        while m < 200:
-            term = term * q / (m * m)
-            s += term
-            if abs(term) < 1e-17 * abs(s) and m > 2:
-                break
-            m += 1
-        return s
-    # Hankel asymptotic expansion, mu = 4 nu^2 = 0
+def _hankel_pq(z: complex) -> tuple[complex, complex]:
+    """P(z) and Q(z) of Hankel's asymptotic expansion of J0 (mu = 4 nu^2 = 0) [-].
+
+    b_k = prod_{j=1..k} (2j-1)^2 / (k! 8^k z^k): P = 1 - b_2 + b_4 - ..., Q = -b_1 + b_3 - ...; the series stop at
+    the first term below 1e-17 or at the smallest term (optimal truncation).
+    """
     iz8 = 1.0 / (8.0 * z)
     p = 1.0 + 0.0j
     qq = 0.0 + 0.0j
-    # b_k = prod_{j=1..k} (2j-1)^2 / (k! 8^k z^k): P = 1 - b_2 + b_4 - ..., Q = -b_1 + b_3 - ...
     a = 1.0 + 0.0j
     best = 1e300
     for k in range(1, 60):
@@ -67,6 +57,26 @@ def _j0_scalar(z: complex) -> complex:
             p += a
         if mag < 1e-17:
             break
+    return p, qq
+
+
+@nb.njit(cache=True, fastmath=False)
+def _j0_scalar(z: complex) -> complex:
+    az = abs(z)
+    if az < _SWITCH:
+        q = -0.25 * z * z
+        term = 1.0 + 0.0j
+        s = term
+        m = 1
+        while m < 200:
+            term = term * q / (m * m)
+            s += term
+            if abs(term) < 1e-17 * abs(s) and m > 2:
+                break
+            m += 1
+        return s
+    # Hankel asymptotic expansion, mu = 4 nu^2 = 0
+    p, qq = _hankel_pq(z)
     phase = z - 0.25 * math.pi
     out: complex = np.sqrt(2.0 / (math.pi * z)) * (p * np.cos(phase) - qq * np.sin(phase))
     return out
@@ -92,31 +102,9 @@ def _j0_hankel(z: complex, amp: complex) -> complex:
     """Hankel's expansion of J0(z) for |z| >= _SWITCH, given amp = sqrt(2 / (pi z)) [-].
 
     cos and sin of z - pi/4 from one complex exponential; the series P, Q
-    stop at the first term below 1e-17 or at the smallest term (optimal
-    truncation), as in :func:`_j0_scalar`.
+    from :func:`_hankel_pq`, as in :func:`_j0_scalar`.
     """
-    iz8 = 1.0 / (8.0 * z)
-    p = 1.0 + 0.0j
-    qq = 0.0 + 0.0j
-    a = 1.0 + 0.0j
-    best = 1e300
-    for k in range(1, 60):
-        a = a * ((2 * k - 1) * (2 * k - 1)) / k * iz8
-        mag = abs(a)
-        if mag > best:
-            break
-        best = mag
-        r = k % 4
-        if r == 1:
-            qq -= a
-        elif r == 2:
-            p -= a
-        elif r == 3:
-            qq += a
-        else:
-            p += a
-        if mag < 1e-17:
-            break
+    p, qq = _hankel_pq(z)
     e = np.exp(1j * (z - 0.25 * math.pi))
     ei = 1.0 / e
     cos = 0.5 * (e + ei)
