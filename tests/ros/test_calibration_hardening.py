@@ -147,9 +147,11 @@ def test_burst_beyond_the_queue_is_refused_and_counted(ros_python, client_factor
     assert running.result().accepted
     c.last_diag(lambda v: v.get("state") == "running", "the long fit running")
     t0 = time.monotonic()
+    # the goals first, then the calls (sent together, the node's order of the two would decide which are queued)
     goal_futs = [cli.send_goal_async(CalibrateAction.Goal(bag_path=str(IMPACT_BAG))) for _ in range(BURST)]
+    c.wait_for(lambda: all(f.done() for f in goal_futs), "every goal response", 60.0)
     call_futs = [srv.call_async(Calibrate.Request(bag_path=str(IMPACT_BAG), method="impact")) for _ in range(BURST)]
-    c.wait_for(lambda: all(f.done() for f in goal_futs + call_futs), "every goal response and service answer", 60.0)
+    c.wait_for(lambda: all(f.done() for f in call_futs), "every service answer", 60.0)
     print(f"burst of {2 * BURST} answered in {time.monotonic() - t0:.2f} s behind the running fit")
     accepted = [f.result() for f in goal_futs if f.result().accepted]
     busy = [f.result() for f in call_futs if f.result().message.startswith("busy: a calibration is running")]
@@ -169,6 +171,37 @@ def test_burst_beyond_the_queue_is_refused_and_counted(ros_python, client_factor
     c.wait_for(lambda: all(f.done() for f in results), "the canceled goals' results", FIT_TIMEOUT)
     assert [r.result().status for r in results] == [GoalStatus.STATUS_CANCELED] * 3
     c.last_diag(lambda v: v.get("goals_canceled") == "3" and v.get("state") == "idle", "three canceled")
+
+
+def test_a_service_call_waiting_for_its_fit_holds_up_no_goal(ros_python, client_factory, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A call queued behind a running fit, then goals: the goals are answered (one queued, the rest refused) while
+    the fit still runs. The call's handler awaits its fit; in the node's default mutually exclusive callback group
+    it kept every goal, call and cancel waiting until that fit ended (a burst was admitted one per finished fit)."""
+    _start_calibration_node(ros_python, "-p", "max_queued:=2")
+    c = client_factory()
+    c.ready()
+    cli = _burst_client(c)
+    srv = c.node.create_client(Calibrate, NAME, qos_profile=request_qos())
+    c.wait_for(srv.service_is_ready, "service client")
+    _warm_up(c, cli, srv, tmp_path / "no_such_bag")
+    running = cli.send_goal_async(CalibrateAction.Goal(bag_path=str(RECEPTANCE_BAG), **LONG_FIT))
+    c.wait_for(running.done, "the long goal's response")
+    assert running.result().accepted
+    long_result = running.result().get_result_async()
+    c.last_diag(lambda v: v.get("state") == "running", "the long fit running")
+    call = srv.call_async(Calibrate.Request(bag_path=str(IMPACT_BAG), method="impact"))
+    c.last_diag(lambda v: v.get("queued") == "1", "the call queued")
+    goals = [cli.send_goal_async(CalibrateAction.Goal(bag_path=str(IMPACT_BAG))) for _ in range(3)]
+    c.wait_for(lambda: all(f.done() for f in goals) or long_result.done(), "the goals' responses", FIT_TIMEOUT)
+    assert not long_result.done(), "the goals were answered only after the running fit had ended"
+    assert [f.result().accepted for f in goals] == [True, False, False]
+    _, v = c.last_diag(lambda v: v.get("goals_rejected") == "2", "two refusals counted")
+    assert v["queued"] == "2"
+    for h in (running.result(), goals[0].result()):
+        cancel = cli._cancel_goal_async(h)
+        c.wait_for(cancel.done, "a cancel answer")
+    c.wait_for(call.done, "the queued call's answer", FIT_TIMEOUT)
+    assert call.result().success, call.result().message
 
 
 def _aborted_goal(c: Client, bag: str | Path, *fragments: str, **fields: Any) -> Any:

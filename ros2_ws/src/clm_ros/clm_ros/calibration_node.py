@@ -48,6 +48,7 @@ from clm_msgs.srv import Calibrate
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -119,24 +120,24 @@ class CalibrationNode(Node):
     def __init__(self, signals: StopSignals | None = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._signals = signals  # the process's SIGINT/SIGTERM (clm_ros.node_main), for the shutdown's log
-        declare_settings(self, ("default_method", "max_queued", "allowed_roots", "push_timeout",
-                                "diagnostics_period"))
+        declare_settings(self, ("default_method", "max_queued", "allowed_roots", "push_timeout", "diagnostics_period"))
         lookup("default_method").check(self._default_method())  # the value at start (changes: declare_settings)
         self._roots = parse_roots(str(self.get_parameter("allowed_roots").value))  # read-only: fixed at start
-        # callbacks run in a single-threaded executor and never block: the fit and the push run in the runner's
-        # worker thread; a goal or call awaits its job's future, which the worker completes and wakes
+        # one executor thread; callbacks never block (fits, pushes: the runner's worker, which completes the awaited
+        # futures); reentrant group: a call awaiting its fit must not hold up goals, calls, cancels (burst admitted)
         self._wake = self.create_guard_condition(lambda: None)
         self.log = NodeLog(self)  # the nodes' one logging helper (bounded lines, once per reason, tracebacks)
         self.book = JobBook()
         self.runner = JobRunner(self.book, self._run, self._wake.trigger, self.log)
         self._stop = self.runner.stop
         self._pusher = ParameterPusher(self, self._stop, self.log)
-        q = request_qos()
+        q, answers = request_qos(), ReentrantCallbackGroup()
         self.action_server = ActionServer(
             self, CalibrateAction, ACTION_NAME, self._execute_goal, goal_callback=self._on_goal,
             handle_accepted_callback=self._on_accepted, cancel_callback=self._on_cancel, goal_service_qos_profile=q,
-            result_service_qos_profile=q, cancel_service_qos_profile=q, feedback_pub_qos_profile=q)
-        self.service = self.create_service(Calibrate, SERVICE_NAME, self._serve, qos_profile=q)
+            result_service_qos_profile=q, cancel_service_qos_profile=q, feedback_pub_qos_profile=q,
+            callback_group=answers)
+        self.service = self.create_service(Calibrate, SERVICE_NAME, self._serve, qos_profile=q, callback_group=answers)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # both timers on the steady clock: with use_sim_time and no /clock, ROS time stands still and timers of
         # the node's default clock would never fire (no diagnostics, a queued goal's cancel never seen)
@@ -339,9 +340,9 @@ class CalibrationNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point ``calibration_node`` (``args``: the command line, default ``sys.argv``): spin until
-    SIGINT/SIGTERM; exit code 0 (also after a signal, within 2 s even mid-fit: a fit that does not stop within
-    :data:`SHUTDOWN_GRACE` ends with the process, :meth:`CalibrationNode.abandoned`), 2 for an invalid parameter."""
-    # SingleThreadedExecutor: the action server's goal handles are served from its spin_once
+    SIGINT/SIGTERM (a SingleThreadedExecutor: it serves the action's goal handles); exit code 0 (also after a signal,
+    within 2 s even mid-fit: a fit that does not stop within :data:`SHUTDOWN_GRACE` ends with the process,
+    :meth:`CalibrationNode.abandoned`), 2 for an invalid parameter."""
     return run_node(CalibrationNode, args, NODE_NAME, executor_type=SingleThreadedExecutor)
 
 
