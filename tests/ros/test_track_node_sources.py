@@ -33,8 +33,9 @@ from streams import encoded, frames, offline
 from clm_core.io.timebase import NS
 
 #: The second publisher: ``n`` frames of another vehicle (100 m further) stamped between the source's (+0.5 ms),
-#: published at ~1 kHz once the track node's subscription is matched; then, once the file ``go`` exists, ``n2``
-#: more continuing its own stream. Closed loop (``t0`` = 0): once the vehicle's first message is heard, the ``n``
+#: published at ~1 kHz once the track node's subscription is matched (and the file argv[5], if given, exists);
+#: then, once the file ``go`` exists, ``n2`` more continuing its own stream. Closed loop (``t0`` = 0): once
+#: the vehicle's first message is heard, the ``n``
 #: frames at once, stamped between the vehicle's (its first stamp + k ms + 0.5 ms), so that all are sent and refused
 #: while the vehicle's train runs: paced at 1 kHz on its own clock, they outlasted the vehicle's 3-s train on a loaded
 #: machine (a late start, sleeps of more than 1 ms): the vehicle left the graph, the rest of the foreign stream was
@@ -58,6 +59,8 @@ if t0 == 0:  # closed loop: a reader of the vehicle's messages (the vehicle wait
     node.create_subscription(WheelLoads, "wheel_loads", heard.append, qos, raw=True)
 while pub.get_subscription_count() < 1:
     rclpy.spin_once(node, timeout_sec=0.05)
+while len(sys.argv) > 5 and not Path(sys.argv[5]).exists():  # optional: a file that says when to begin
+    rclpy.spin_once(node, timeout_sec=0.01)
 def frame(k):
     x = 130.0 + 30.0 * k * 1e-3
     return encode_wheel_loads(t0 + k * 10**6, "track", [0, 1], np.array([x, x - 2.5]), np.array([9e4, 9e4]))
@@ -88,11 +91,18 @@ def test_open_loop_second_source_refused_then_takes_over(ros_python, ros_domain_
     t0 = 5 * NS
     stream = frames(400, t0)
     msgs = encoded(stream)
-    go = tmp_path / "go"
+    go, start = tmp_path / "go", tmp_path / "start"
     with track_node(ros_python, ros_domain_id) as run:
         drv = run.drv
+        # the second publisher is in the graph before the source's first frame and begins on a file: started
+        # between the source's frames it took > 3 s on a loaded machine, the source went quiet for QUIET_S and the
+        # second took its stream over (a stress run's failure)
+        second = ros_python.spawn(SECOND, [str(t0 + 100 * 10**6 + 500_000), "200", "100", str(go), str(start)],
+                                  name="second")
+        drv.wait_for(lambda: int(drv.latest_diagnostics().get("wheel_load_publishers", "0")) >= 2, 60,
+                     "the second publisher in the graph")
         drv.send(msgs[:100], expected_answers=100)
-        second = ros_python.spawn(SECOND, [str(t0 + 100 * 10**6 + 500_000), "200", "100", str(go)], name="second")
+        start.write_text("start")
         drv.send(msgs[100:400], expected_answers=300, max_in_flight=5)  # interleaved with the second's frames
         drv.wait_for(lambda: int(drv.latest_diagnostics().get("rejected.second_source", "0")) >= 200, 60,
                      "the second source's 200 frames refused")
