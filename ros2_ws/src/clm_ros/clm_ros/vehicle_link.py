@@ -103,12 +103,19 @@ class TrackLink:
         ns, name = self.node.get_namespace(), self.track_node
         if not (sub.get_publisher_count() >= 1 and any(owned(r, name, ns) for r in readers)
                 and any(owned(w, name, ns) for w in writers) and all_matched(pub, readers)):
-            # gone, or not there yet: ask again when back, and forget what a former track node said
+            # not there yet: its word, latched and sent once, stays queued for when it is; gone after it was
+            # there: forget what it said through a new reader, which gets the latched word of whichever track
+            # node is there next (draining the queue instead lost a word that came while the graph lagged)
+            if self._graph_ready_since:
+                self._renew_status()
             self._graph_ready_since, self._handshake = 0, None
-            for _ in take_raw(self._status):
-                pass
             return False
         return self._track_subscribed()
+
+    def _renew_status(self) -> None:
+        """A new ``track_status`` reader: what a former track node said is dropped, the current word re-sent."""
+        self.helper.destroy_subscription(self._status)
+        self._status = self.helper.create_subscription(DiagnosticArray, TRACK_STATUS, _ignore, LATCHED_QOS)
 
     def _track_subscribed(self) -> bool:
         """The track node says (``wheel_load_publishers_matched`` >= 1 in its latched ``track_status``) that its
