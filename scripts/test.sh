@@ -14,8 +14,11 @@
 # only the ROS part); every other argument goes to both. Each test runs once.
 # Both parts run; the exit status is the first failing part's (a part that
 # selects no test counts as passed when the other ran tests).
+# The ROS part runs its test files on CLM_ROS_WORKERS pytest-xdist workers (default 2, one file per worker at a
+# time: --dist loadfile; 1: one process). Its tests wait on discovery and other processes far more than they
+# compute, and each holds its own DDS domain (tests/ros/conftest.py), so two at once share nothing.
 # Env: CLM_TEST_PARTS (default "core ros": the parts allowed to run), CLM_CORE_VENV
-# (default .venv-core), CLM_VENV (default .venv).
+# (default .venv-core), CLM_VENV (default .venv), CLM_ROS_WORKERS (default 2).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
@@ -84,7 +87,11 @@ if [ "${#ros_paths[@]}" -gt 0 ]; then
         || { echo "test.sh: the ROS environment is missing from $ros_venv (scripts/setup_ros.sh $ros_venv)" >&2; exit 1; }
     export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
     export CLM_REQUIRE_ROS=${CLM_REQUIRE_ROS:-1}
-    run_part ros "$ros_venv/bin/python" -m pytest "${opts[@]}" "${ros_paths[@]}"
+    workers=${CLM_ROS_WORKERS:-2}
+    case "$workers" in ''|*[!0-9]*|0) echo "test.sh: CLM_ROS_WORKERS=$workers: must be a whole number >= 1" >&2; exit 2 ;; esac
+    xdist=()
+    [ "$workers" -gt 1 ] && xdist=(-n "$workers" --dist loadfile)
+    run_part ros "$ros_venv/bin/python" -m pytest "${xdist[@]}" "${opts[@]}" "${ros_paths[@]}"
 fi
 
 if [ "${#names[@]}" = 0 ]; then echo "test.sh: no part selected (CLM_TEST_PARTS=${CLM_TEST_PARTS:-})" >&2; exit 5; fi
