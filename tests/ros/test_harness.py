@@ -77,7 +77,9 @@ def test_fleet_trains_start_together_or_on_a_schedule(tmp_path: Path, ros_domain
                   progress=False, pair_process=True)
     o = s["overall"]
     assert s["status"] == "ok" and o["started_together"] == 3 and o["max_running_at_once"] == 3
-    assert o["start_spread_s"] < 0.25  # one start time for all (each vehicle polls its start every 10 ms)
+    # one start time for all, given START_LEAD ahead (each vehicle polls its start every 10 ms): the spread is a
+    # process's lateness on a loaded machine, far below the 1-s stagger below (one after another: seconds apart)
+    assert o["start_spread_s"] < 0.5
     s = run_fleet(tmp_path / "staggered", run, trains=2, hold_domain=False, record=False, verify=False,
                   progress=False, pair_process=True, stagger=1.0)
     o = s["overall"]

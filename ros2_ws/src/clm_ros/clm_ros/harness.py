@@ -55,8 +55,10 @@ from clm_ros.processes import proc_cpu_s, ros_args, stop_processes
 
 #: How often the recorder takes the messages that have arrived [s] (their log times are their reception times).
 POLL = 0.005
-#: Time from the start signal to the common start of the trains [s] (the signal reaches every vehicle first).
-START_LEAD = 0.3
+#: Time from the start signal to the common start of the trains [s]: the latched signal reaches every vehicle
+#: before it, also when a reliable sample is repaired after a heartbeat on a loaded machine (with 0.3 s, a
+#: train of three once started 0.29 s after the others at load 3.6).
+START_LEAD = 1.0
 #: Longest wait for the answers of a finished train to reach the bag [s].
 ANSWERS_TIMEOUT = 60.0
 #: Longest wait for the node processes to exit after SIGINT, all together [s] (then SIGTERM, then SIGKILL):
