@@ -74,7 +74,7 @@ class TrackLink:
         qos = QoSOverridingOptions.with_default_policies()
         self.answers = self.helper.create_subscription(WheelRailResponse, "wheel_rail_response", _ignore, DATA_QOS,
                                                        qos_overriding_options=qos, raw=True)
-        self._status = self.helper.create_subscription(DiagnosticArray, TRACK_STATUS, _ignore, LATCHED_QOS)
+        self._status = self._status_reader()
         self._start = self.helper.create_subscription(Int64, START_AT, _ignore, LATCHED_QOS) if start_signal else None
         self.start_at: int | None = None  # the supervisor's start time [ns, system clock] (start_signal)
         self._handshake: int | None = None  # the track node's matched wheel-load publishers (None: not said)
@@ -112,10 +112,14 @@ class TrackLink:
             return False
         return self._track_subscribed()
 
+    def _status_reader(self) -> Any:
+        """A reader of the track node's latched ``track_status`` (its current word is sent to it on matching)."""
+        return self.helper.create_subscription(DiagnosticArray, TRACK_STATUS, _ignore, LATCHED_QOS)
+
     def _renew_status(self) -> None:
         """A new ``track_status`` reader: what a former track node said is dropped, the current word re-sent."""
         self.helper.destroy_subscription(self._status)
-        self._status = self.helper.create_subscription(DiagnosticArray, TRACK_STATUS, _ignore, LATCHED_QOS)
+        self._status = self._status_reader()
 
     def _track_subscribed(self) -> bool:
         """The track node says (``wheel_load_publishers_matched`` >= 1 in its latched ``track_status``) that its
