@@ -77,9 +77,10 @@ def test_fleet_trains_start_together_or_on_a_schedule(tmp_path: Path, ros_domain
                   progress=False, pair_process=True)
     o = s["overall"]
     assert s["status"] == "ok" and o["started_together"] == 3 and o["max_running_at_once"] == 3
-    # one start time for all, given START_LEAD ahead (each vehicle polls its start every 10 ms): the spread is a
-    # process's lateness on a loaded machine, far below the 1-s stagger below (one after another: seconds apart)
-    assert o["start_spread_s"] < 0.5
+    # one start time for all, given START_LEAD (1 s) ahead, so a start signal repaired after a heartbeat is still in
+    # time; each vehicle polls its start every 10 ms: the spread is a process's lateness on a loaded machine, a
+    # quarter of the 1-s stagger below (one after another, as before the harness: seconds apart)
+    assert o["start_spread_s"] < 0.25, o
     s = run_fleet(tmp_path / "staggered", run, trains=2, hold_domain=False, record=False, verify=False,
                   progress=False, pair_process=True, stagger=1.0)
     o = s["overall"]
