@@ -48,7 +48,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -166,13 +166,18 @@ class Listener:
 
 
 @contextlib.contextmanager
-def track_node(params: dict[str, Any], log_dir: Path, name: str) -> Iterator[tuple[subprocess.Popen[bytes], Listener]]:
-    """The track node in a domain of its own and this process's listener, both ready (node active)."""
+def track_node(params: dict[str, Any], log_dir: Path, name: str,
+               python_args: Sequence[str] = ("-m", "clm_ros.track_node"),
+               env_extra: Mapping[str, str] | None = None) -> Iterator[tuple[subprocess.Popen[bytes], Listener]]:
+    """The track node in a domain of its own and this process's listener, both ready (node active).
+
+    ``python_args``: how the interpreter starts the node (default ``-m clm_ros.track_node``; soak.py's
+    ``--trace-python`` starts it under ``tracemalloc``); ``env_extra``: added to the node's environment."""
     with hold_domain_id() as dom:
-        env = ros_env(dom, pythonpath=[str(CLM_ROS_SRC)])
+        env = {**ros_env(dom, pythonpath=[str(CLM_ROS_SRC)]), **(env_extra or {})}
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         with open(log_dir / f"{name}.log", "w") as log:
-            proc = subprocess.Popen([sys.executable, "-m", "clm_ros.track_node", *ros_args({**TRACK, **params})],
+            proc = subprocess.Popen([sys.executable, *python_args, *ros_args({**TRACK, **params})],
                                     env=env, stdout=log, stderr=subprocess.STDOUT)
             lis = Listener(dom)
             try:

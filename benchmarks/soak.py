@@ -28,9 +28,18 @@ node itself reported in a diagnostics period), and the node's resident
 memory (RSS) and open file descriptors from the first minute to the end with
 the least-squares slope of RSS over that span (target: RSS flat within 5 %).
 
+``--trace-python N`` runs the node under :mod:`tracemalloc` (N frames per
+traceback; slows the node's allocations): it writes a snapshot every
+``--trace-every`` s on ``SIGUSR2`` from this process, and the report adds
+the Python heap the node holds at each snapshot next to its RSS (a leak of
+Python objects grows both; a native one, or the allocator's fragmentation,
+only the RSS) and the allocation sites that grew most from the first
+snapshot after the first minute to the last.
+
 Usage::
 
     python benchmarks/soak.py [--duration 600] [--rate 1000] [--hostile 0.01] [--seed 1] [--hog N]
+                              [--trace-python 12 [--trace-every 60]] [--timeline]
 """
 
 from __future__ import annotations
@@ -55,6 +64,21 @@ from online_path import stream
 
 from clm_core.io.messages import encode_wheel_loads
 from clm_core.io.timebase import NS
+
+#: The node under tracemalloc: a snapshot into $CLM_SOAK_TRACE_DIR at each SIGUSR2 (run by the main thread at its
+#: next bytecode; the executor wakes at every message).
+TRACED_NODE = """
+import os, runpy, signal, tracemalloc
+tracemalloc.start(int(os.environ["CLM_SOAK_TRACE_FRAMES"]))
+_n = [0]
+def _snap(*_):
+    d = os.environ["CLM_SOAK_TRACE_DIR"]
+    tracemalloc.take_snapshot().dump(os.path.join(d, f"snap{_n[0]:04d}.part"))
+    os.replace(os.path.join(d, f"snap{_n[0]:04d}.part"), os.path.join(d, f"snap{_n[0]:04d}.pickle"))
+    _n[0] += 1
+signal.signal(signal.SIGUSR2, _snap)
+runpy.run_module("clm_ros.track_node", run_name="__main__", alter_sys=True)
+"""
 
 HOSTILE = ("random_bytes", "truncated", "nanosec", "nan_force", "huge_force", "far_position", "tensile",
            "duplicate_id", "unknown_id", "thousand_wheels", "future_stamp", "stamp_back")
@@ -139,7 +163,15 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
 
     rng = random.Random(a.seed)
     period = round(NS / a.rate)
-    with track_node({"diagnostics_period": 0.5}, log_dir, "track_node_soak") as (proc, lis):
+    trace_dir = log_dir / "tracemalloc"
+    traced: dict[str, Any] = {}
+    if a.trace_python:
+        trace_dir.mkdir(exist_ok=True)
+        traced = {"python_args": ("-c", TRACED_NODE), "env_extra": {
+            "CLM_SOAK_TRACE_DIR": str(trace_dir), "CLM_SOAK_TRACE_FRAMES": str(a.trace_python)}}
+    snaps: list[tuple[float, float]] = []  # (time [s], RSS [MB]) of each snapshot asked for
+    next_snap = time.monotonic() + (a.trace_every if a.trace_python else float("inf"))
+    with track_node({"diagnostics_period": 0.5}, log_dir, "track_node_soak", **traced) as (proc, lis):
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         wheel_answers: list[int] = []
         wheel_times: list[tuple[int, int]] = []  # the answers' source_timestamp and received_timestamp [ns]
@@ -193,6 +225,10 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
             if now >= next_mem:
                 mem.append((now - t0, *rss_fds(proc.pid)))
                 next_mem = now + 10
+            if now >= next_snap:
+                snaps.append((now - t0, rss_fds(proc.pid)[0]))
+                proc.send_signal(signal.SIGUSR2)
+                next_snap = now + a.trace_every
             if now >= next_cycle:
                 settle()
                 full = rng.random() < 0.5
@@ -243,6 +279,10 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
             k += 1
         settle()
         mem.append((time.monotonic() - t0, *rss_fds(proc.pid)))
+        if a.trace_python:
+            snaps.append((time.monotonic() - t0, rss_fds(proc.pid)[0]))
+            proc.send_signal(signal.SIGUSR2)
+            lis.wait(lambda: len(list(trace_dir.glob("*.pickle"))) >= len(snaps), 120, "the last heap snapshot")
         n_diag = len(lis.diags)
         lis.wait(lambda: len(lis.diags) > n_diag + 1, 10, "final diagnostics")
         d = lis.diags[-1]
@@ -265,8 +305,32 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         "answered_hostile": len(hostile_stamps & set(answered) - valid_set),
         "in_order": answered == sorted(answered), "hostile_sent": hostile_sent, "node": d, "log": log,
         "updates": updates, "memory": mem, "lags": lags, "node_lag_p99_s": node_p99, "events": events, "exit_code": rc,
-        "exit_s": exit_s, "loadavg": os.getloadavg()[0],
+        "exit_s": exit_s, "loadavg": os.getloadavg()[0], "snapshots": snaps, "trace_dir": trace_dir,
     }
+
+
+def heap_growth(r: dict[str, Any], top: int = 12) -> None:
+    """Print the node's traced Python heap next to its RSS at each snapshot, and the allocation sites that grew
+    most from the first snapshot after the first minute to the last (``--trace-python``)."""
+    import tracemalloc
+
+    files = sorted(Path(r["trace_dir"]).glob("*.pickle"))
+    snaps = [tracemalloc.Snapshot.load(str(f)) for f in files]
+    if len(snaps) < 2:
+        print(f"tracemalloc: {len(snaps)} snapshot(s), nothing to compare")
+        return
+    print("tracemalloc: the node's Python heap (traced) and RSS at each snapshot:")
+    for (t, rss), s in zip(r["snapshots"], snaps):
+        print(f"  {t:7.1f} s  heap {sum(x.size for x in s.statistics('filename')) / 2**20:8.2f} MB  RSS {rss:7.1f} MB")
+    first = next((i for i, (t, _) in enumerate(r["snapshots"]) if t >= 60.0), 0)
+    first = min(first, len(snaps) - 2)
+    t0, t1 = r["snapshots"][first][0], r["snapshots"][len(snaps) - 1][0]
+    diff = snaps[-1].compare_to(snaps[first], "traceback")
+    print(f"tracemalloc: the {top} allocation sites that grew most from {t0:.0f} s to {t1:.0f} s:")
+    for st in diff[:top]:
+        print(f"  {st.size_diff / 1024:+9.1f} kB  {st.count_diff:+7d} blocks  (now {st.size / 1024:.1f} kB)")
+        for line in st.traceback.format()[-2 * 6:]:
+            print(f"      {line}")
 
 
 def late_episodes(lags: np.ndarray, events: list[tuple[int, int, str]], late_ms: float = 100.0) -> None:
@@ -343,6 +407,9 @@ def main() -> int:
     ap.add_argument("--hog", type=int, default=0, help="busy-loop processes for the whole run")
     ap.add_argument("--keep-logs", default=None, help="directory for the node log")
     ap.add_argument("--timeline", action="store_true", help="print the transitions and the memory samples")
+    ap.add_argument("--trace-python", type=int, default=0, metavar="FRAMES",
+                    help="run the node under tracemalloc with FRAMES frames per traceback (0: off)")
+    ap.add_argument("--trace-every", type=float, default=60.0, help="seconds between two heap snapshots")
     a = ap.parse_args()
     with contextlib.ExitStack() as stack:
         log_dir = Path(a.keep_logs) if a.keep_logs else Path(stack.enter_context(
@@ -350,7 +417,9 @@ def main() -> int:
         log_dir.mkdir(parents=True, exist_ok=True)
         stack.enter_context(hogs(a.hog))
         r = soak(a, log_dir)
-    report(r, a)
+        report(r, a)
+        if a.trace_python:
+            heap_growth(r)
     if a.timeline:
         print("\n".join(r["log"]))
         print("\n".join(f"{t:7.1f} s RSS {m:7.1f} MB fds {n}" for t, m, n in r["memory"]))
