@@ -30,7 +30,8 @@ the least-squares slope of RSS over that span (target: RSS flat within 5 %).
 
 ``--trace-python N`` runs the node under :mod:`tracemalloc` (N frames per
 traceback; slows the node's allocations): it writes a snapshot every
-``--trace-every`` s on ``SIGUSR2`` from this process, and the report adds
+``--trace-every`` s on ``SIGUSR2`` from this process (traffic pauses, as
+around a transition, until the snapshot is written), and the report adds
 the Python heap the node holds at each snapshot next to its RSS (a leak of
 Python objects grows both; a native one, or the allocator's fragmentation,
 only the RSS) and the allocation sites that grew most from the first
@@ -221,14 +222,39 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
             lis.wait(lambda: lis.pub.get_subscription_count() >= 1 and lis.sub.get_publisher_count() >= 1
                      and wsub.get_publisher_count() >= 1, 60, "the node active and matched")
 
+        blocked = [0]  # publications the middleware refused (the node's reader too far behind), then repeated
+
+        def send(raw: bytes) -> None:
+            """Publish ``raw``; a refusal (a reliable keep-all writer full: the node's reader has not acknowledged
+            its history, e.g. a node slowed by ``--trace-python`` on a loaded machine) is counted and the same
+            frame published again once this process has spun for 10 ms (nothing is lost or reordered)."""
+            for _ in range(6000):
+                try:
+                    lis.pub.publish(raw)
+                    return
+                except Exception as exc:  # rclpy's RCLError: "cannot publish data"
+                    if "publish" not in str(exc):
+                        raise
+                    blocked[0] += 1
+                    drain()
+                    lis.spin_for(0.01)
+            raise RuntimeError("the node's reader acknowledged nothing for 60 s: wheel loads refused throughout")
+
+        def snapshot() -> None:
+            """The node's heap snapshot (``--trace-python``), written before this returns."""
+            snaps.append((time.monotonic() - t0, rss_fds(proc.pid)[0]))
+            proc.send_signal(signal.SIGUSR2)
+            lis.wait(lambda: len(list(trace_dir.glob("*.pickle"))) >= len(snaps), 600, "a heap snapshot")
+
         while (now := time.monotonic()) - t0 < a.duration:
             if now >= next_mem:
                 mem.append((now - t0, *rss_fds(proc.pid)))
                 next_mem = now + 10
-            if now >= next_snap:
-                snaps.append((now - t0, rss_fds(proc.pid)[0]))
-                proc.send_signal(signal.SIGUSR2)
-                next_snap = now + a.trace_every
+            if now >= next_snap:  # traffic pauses while the node writes a snapshot (seconds: its main thread
+                settle()  # stops; a reliable keep-all writer of wheel loads would fill and refuse to publish)
+                snapshot()
+                next_snap = time.monotonic() + a.trace_every
+                next_due = time.monotonic()
             if now >= next_cycle:
                 settle()
                 full = rng.random() < 0.5
@@ -272,17 +298,15 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
                 hostile_sent[kind] += 1
                 with contextlib.suppress(struct.error, IndexError):
                     hostile_stamps.add(header_stamp(h))
-                lis.pub.publish(h)
+                send(h)
             sent_at[t_ns] = time.time_ns()
-            lis.pub.publish(raw)
+            send(raw)
             valid.append(t_ns)
             k += 1
         settle()
         mem.append((time.monotonic() - t0, *rss_fds(proc.pid)))
         if a.trace_python:
-            snaps.append((time.monotonic() - t0, rss_fds(proc.pid)[0]))
-            proc.send_signal(signal.SIGUSR2)
-            lis.wait(lambda: len(list(trace_dir.glob("*.pickle"))) >= len(snaps), 120, "the last heap snapshot")
+            snapshot()
         n_diag = len(lis.diags)
         lis.wait(lambda: len(lis.diags) > n_diag + 1, 10, "final diagnostics")
         d = lis.diags[-1]
@@ -306,6 +330,7 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         "in_order": answered == sorted(answered), "hostile_sent": hostile_sent, "node": d, "log": log,
         "updates": updates, "memory": mem, "lags": lags, "node_lag_p99_s": node_p99, "events": events, "exit_code": rc,
         "exit_s": exit_s, "loadavg": os.getloadavg()[0], "snapshots": snaps, "trace_dir": trace_dir,
+        "publish_refused": blocked[0],
     }
 
 
@@ -370,6 +395,8 @@ def report(r: dict[str, Any], a: argparse.Namespace) -> None:
           f"rejected {d['rejected']} ({', '.join(f'{k} {v}' for k, v in rej.items())}), not accepted "
           f"{d['not_accepted']}, resyncs {d['resyncs']}, publish failed {d['publish_failed']}, largest batch "
           f"{d['largest_batch']}")
+    if r["publish_refused"]:
+        print(f"publications refused by the middleware and repeated (the node behind): {r['publish_refused']}")
     print(f"lifecycle: {len(r['log'])} transitions ({sum('REFUSED' in x for x in r['log'])} refused); parameter "
           f"updates: {r['updates']}")
     if r["lags"]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import subprocess
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -135,11 +136,22 @@ class Driver:
             self.spin(0)
         self.wait_answers(base + expected_answers, base_w + expected_answers, timeout)
 
-    def burst(self, msgs: Iterable[Any], expected_answers: int, timeout: float = 120.0) -> None:
-        """Publish every message at once (a backlog at the node); wait for ``expected_answers`` answers."""
+    def burst(self, msgs: Iterable[Any], expected_answers: int, timeout: float = 120.0,
+              stopped_pid: int | None = None) -> None:
+        """Publish every message at once (a backlog at the node); wait for ``expected_answers`` answers.
+
+        ``stopped_pid``: the node's process, stopped (SIGSTOP) while the messages are published and continued
+        (SIGCONT) after, so the backlog is there however slowly this process publishes (on a loaded machine a
+        node under SCHED_FIFO otherwise keeps up with it message by message: one message per batch)."""
         base, base_w = len(self.sleepers), len(self.wheels)
-        for m in msgs:
-            self.pub.publish(m)
+        if stopped_pid is not None:
+            os.kill(stopped_pid, signal.SIGSTOP)
+        try:
+            for m in msgs:
+                self.pub.publish(m)
+        finally:
+            if stopped_pid is not None:
+                os.kill(stopped_pid, signal.SIGCONT)
         self.wait_answers(base + expected_answers, base_w + expected_answers, timeout)
 
     def wait_answers(self, n_sleepers: int, n_wheels: int, timeout: float) -> None:

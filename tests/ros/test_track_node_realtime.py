@@ -32,7 +32,7 @@ def test_burst_of_2000_answered_exactly_once_in_order_identical_to_offline(ros_p
     with track_node(ros_python, ros_domain_id, "diagnostics_period:=0.05") as run:
         drv = run.drv
         stream = frames(2000, 5 * NS)
-        drv.burst(encoded(stream), expected_answers=2000)
+        drv.burst(encoded(stream), expected_answers=2000, stopped_pid=run.proc.pid)  # the backlog: 2000 at once
         t_end = time.monotonic() + 1.0
         while time.monotonic() < t_end:  # anything more would be a duplicate
             drv.spin(0.05)
