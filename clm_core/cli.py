@@ -17,9 +17,13 @@ their computing modules inside ``run``), so ``clm --help`` answers quickly.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import faulthandler
 import importlib
 import pkgutil
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
@@ -84,7 +88,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``clm`` command; return the process exit code."""
+    """Run the ``clm`` command; return the process exit code.
+
+    ``kill -USR1 <pid>`` of a running ``clm`` process prints the Python stack of each of its threads to stderr,
+    and the process goes on: how a run that hangs is diagnosed.
+    """
+    if hasattr(signal, "SIGUSR1") and threading.current_thread() is threading.main_thread():
+        with contextlib.suppress(OSError, ValueError):  # no file descriptor behind stderr (main() called in-process
+            faulthandler.register(signal.SIGUSR1, all_threads=True)  # under a capture): no stack dumps, that is all
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

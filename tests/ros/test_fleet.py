@@ -192,7 +192,14 @@ def test_fleet_recorder_far_behind_loses_nothing(tmp_path: Path, ros_domain_id: 
             time.sleep(6.5)
         finally:
             proc.send_signal(signal.SIGCONT)
-        stdout, stderr = proc.communicate(timeout=300)
+        try:
+            stdout, stderr = proc.communicate(timeout=300)
+        except subprocess.TimeoutExpired:  # hung (once in 22 runs, 2026-12-04): every thread's stack, then fail
+            proc.send_signal(signal.SIGUSR1)  # clm_core.cli: faulthandler
+            time.sleep(2.0)
+            proc.kill()
+            stdout, stderr = proc.communicate()
+            pytest.fail(f"clm fleet hung 300 s after SIGCONT; its threads then:\n{stderr[-20000:]}")
     finally:
         if proc.poll() is None:
             proc.kill()
