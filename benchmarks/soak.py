@@ -171,7 +171,6 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         traced = {"python_args": ("-c", TRACED_NODE), "env_extra": {
             "CLM_SOAK_TRACE_DIR": str(trace_dir), "CLM_SOAK_TRACE_FRAMES": str(a.trace_python)}}
     snaps: list[tuple[float, float]] = []  # (time [s], RSS [MB]) of each snapshot asked for
-    next_snap = time.monotonic() + (a.trace_every if a.trace_python else float("inf"))
     with track_node({"diagnostics_period": 0.5}, log_dir, "track_node_soak", **traced) as (proc, lis):
         qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         wheel_answers: list[int] = []
@@ -201,6 +200,7 @@ def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:
         updates = {"valid": 0, "valid_refused": 0, "unstable_refused": 0, "unstable_accepted": 0}
         t0 = time.monotonic()
         next_cycle = t0 + rng.uniform(20, 60)
+        next_snap = t0 + (a.trace_every if a.trace_python else float("inf"))  # from the first frame, as the others
         next_update = t0 + rng.uniform(10, 30)
         next_mem = t0
         next_due = next_drain = time.monotonic()
