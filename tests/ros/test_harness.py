@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -183,3 +184,94 @@ def test_nothing_busy_waits_under_sched_fifo(ros_domain_id: int, ros_env: dict[s
         rclpy.try_shutdown(context=ctx)
     if fifo:
         assert "scheduling: back to normal for the shut-down" in log.read_text(), log.read_text()
+
+
+def test_supervisor_participant_env_rules(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 21: the supervisor's participant leaves shared memory only where it can (rules, no DDS)."""
+    from clm_ros.harness import SUPERVISOR_PROFILE, supervisor_participant_env
+
+    for var in ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE", "FASTDDS_BUILTIN_TRANSPORTS"):
+        monkeypatch.delenv(var, raising=False)
+    local = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    assert supervisor_participant_env(local, fresh=True) == {
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "FASTRTPS_DEFAULT_PROFILES_FILE": str(SUPERVISOR_PROFILE),
+        "ROS_STATIC_PEERS": "127.0.0.1"}
+    assert SUPERVISOR_PROFILE.is_file()
+    # a process that made a participant before: Fast DDS will not read the profile; LOCALHOST kept (never SUBNET
+    # with the default transports: that would announce the supervisor beyond the host)
+    assert supervisor_participant_env(local, fresh=False) == local
+    monkeypatch.setenv("FASTDDS_DEFAULT_PROFILES_FILE", "/my/profile.xml")  # the user's own profile wins
+    assert supervisor_participant_env(local, fresh=True) == local
+    monkeypatch.delenv("FASTDDS_DEFAULT_PROFILES_FILE")
+    # pairs on several hosts: SUBNET with the built-in UDPv4 transport only, the nodes' static peers kept
+    subnet = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_STATIC_PEERS": "10.0.0.2;10.0.0.3"}
+    assert supervisor_participant_env(subnet, fresh=True) == {**subnet, "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+    monkeypatch.setenv("FASTDDS_BUILTIN_TRANSPORTS", "LARGE_DATA")
+    assert supervisor_participant_env(subnet)["FASTDDS_BUILTIN_TRANSPORTS"] == "LARGE_DATA"
+    assert supervisor_participant_env({**local, "ROS_STATIC_PEERS": "127.0.0.1;h2"}, fresh=True)[
+        "ROS_STATIC_PEERS"] == "127.0.0.1;h2"
+
+
+#: A supervisor-side participant made as the run harness makes it, in a process of its own; prints what it used
+#: and how many of the publisher's messages it received.
+SUPERVISOR_SNIPPET = """
+    import os, sys, time
+    import rclpy
+    from clm_ros import harness
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import Int64
+
+    domain, before = int(sys.argv[1]), sys.argv[2] == "before"
+    if before:  # another participant of this process first: Fast DDS has read its profiles by then
+        c0 = Context()
+        rclpy.init(context=c0, domain_id=domain)
+        rclpy.create_node("first", context=c0).destroy_node()
+        rclpy.shutdown(context=c0)
+    env = harness.supervisor_participant_env(os.environ)
+    ctx = Context()
+    with harness._environment(env):
+        rclpy.init(context=ctx, domain_id=domain)
+        node = rclpy.create_node("sup", context=ctx)
+    got = []
+    node.create_subscription(Int64, "ticks", lambda m: got.append(m.data), 100)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    deadline = time.monotonic() + 60
+    while len(got) < 20 and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+    print(env.get("ROS_AUTOMATIC_DISCOVERY_RANGE"), harness._own_transport(), len(got), flush=True)
+"""
+
+#: A LOCALHOST node process (shared memory and UDP, as every clm node) that publishes until killed.
+TICKER_SNIPPET = """
+    import sys, time
+    import rclpy
+    from std_msgs.msg import Int64
+    rclpy.init(domain_id=int(sys.argv[1]))
+    node = rclpy.create_node("ticker")
+    pub = node.create_publisher(Int64, "ticks", 100)
+    i = 0
+    while True:
+        pub.publish(Int64(data=i))
+        i += 1
+        time.sleep(0.05)
+"""
+
+
+@pytest.mark.parametrize(("before", "expected"), [("fresh", "SUBNET UDP on loopback"),
+                                                  ("before", "LOCALHOST shared memory and UDP")])
+def test_supervisor_participant_leaves_shared_memory(ros_python: Any, ros_domain_id: int, before: str,
+                                                     expected: str) -> None:
+    """Issue 21: the run harness's own participant, made first in its process, uses UDP bound to the loopback
+    interface only and no shared-memory port (a stopped supervisor's port was re-made by the nodes under the same
+    name: it then never received again), and still hears a LOCALHOST node; made after another participant of its
+    process it keeps LOCALHOST (shared memory), and says so."""
+    ticker = ros_python.spawn(TICKER_SNIPPET, [str(ros_domain_id)], name="ticker")
+    try:
+        out = ros_python.run(SUPERVISOR_SNIPPET, [str(ros_domain_id), before], name="supervisor", timeout=120)
+    finally:
+        ticker.kill()
+        ticker.communicate()
+    rng, transport, n = out.stdout.split()[0], " ".join(out.stdout.split()[1:-1]), int(out.stdout.split()[-1])
+    assert f"{rng} {transport}" == expected and n >= 20, out.stdout + out.stderr

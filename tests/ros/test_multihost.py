@@ -126,7 +126,7 @@ def test_fleet_across_two_hosts_in_equals_out(two_hosts: tuple[str, str], ros_do
         assert p.returncode == 0, f"host {i}: exit {p.returncode}\n{out}\n{err}"
         s = json.loads((tmp_path / f"host{i}" / "summary.json").read_text())
         t = s["trains"][f"train_{i}"]
-        assert s["discovery_range"] == "SUBNET" and t["status"] == "ok"
+        assert s["discovery_range"] == "SUBNET" and t["status"] == "ok" and s["supervisor_transport"] == "UDP"
         assert t["messages_in"] == t["messages_out"] == t["wheel_rail_responses"] == N_MSG and t["in_equals_out"]
         assert t["offline_equal"] and t["vehicle_node"]["published"] == t["vehicle_node"]["answered"] == N_MSG
         log = (tmp_path / f"host{i}" / f"train_{i}_vehicle_node.log").read_text()

@@ -242,6 +242,7 @@ def _run_fleet(dom: int, env: dict[str, str], out: Path, run: RunSettings, *, tr
         "bag": str(bag) if record else None, "ros_domain_id": dom,
         "train_bags": {s.name: str(s.own_bag) for s in specs if s.own_bag is not None},
         "recorded_in": "pair processes" if own else "supervisor" if record else None,
+        "supervisor_transport": r.supervisor_transport,
         "discovery_range": env["ROS_AUTOMATIC_DISCOVERY_RANGE"], "pair_process": pair_process, "stagger_s": stagger,
         "recorded_topics": list(recorded) if record else [],
     })

@@ -33,20 +33,23 @@ Control-plane facts are state, never one message (issue 21):
 Train states: ``starting``, ``ready``, ``running``, ``done`` (its vehicle
 finished the train), ``failed`` and ``timeout``.
 
-The supervisor's own DDS participant (recorder, watcher) uses UDP on loopback
-(:data:`SUPERVISOR_TRANSPORTS`): a supervisor starved by the scheduler must
-not lose the nodes for good, which Fast DDS shared memory did (docs/fleet.md).
+The supervisor's own DDS participant (recorder, watcher) uses UDP only, never
+Fast DDS shared memory (:func:`supervisor_participant_env`): a supervisor
+starved by the scheduler, or stopped, must neither block the nodes' writers
+nor lose the nodes for good, which a full shared-memory port did
+(docs/fleet.md). :attr:`RunResult.supervisor_transport` says what it used.
 """
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import os
 import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -64,8 +67,12 @@ ANSWERS_TIMEOUT = 60.0
 #: Longest wait for the node processes to exit after SIGINT, all together [s] (then SIGTERM, then SIGKILL):
 #: a loaded machine can take many seconds to tear a process down.
 STOP_TIMEOUT = 45.0
-#: Fast DDS transports of the supervisor's own participant (env ``FASTDDS_BUILTIN_TRANSPORTS``, set unless given).
+#: Fast DDS transports of the supervisor's own participant with SUBNET discovery (env ``FASTDDS_BUILTIN_TRANSPORTS``).
 SUPERVISOR_TRANSPORTS = "UDPv4"
+#: Fast DDS profile of the supervisor's own participant with LOCALHOST discovery: UDP on the loopback interface only.
+SUPERVISOR_PROFILE = Path(__file__).with_name("fastdds_supervisor.xml")
+#: Environment variables that name a Fast DDS XML profile file (a user's own wins over :data:`SUPERVISOR_PROFILE`).
+PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 #: Terminal train states.
 ENDED = ("done", "failed", "timeout")
 #: The data topics of a train (relative to its namespace): what its writers must keep for a recorder.
@@ -152,6 +159,10 @@ class RunResult:
     concurrency: dict[str, Any]
     bag: Path | None
     ros_domain_id: int
+    #: What the supervisor's own participant used (:func:`supervisor_participant_env`): ``UDP on loopback``, ``UDP``
+    #: (SUBNET discovery) or ``shared memory and UDP`` (a user's own Fast DDS profile, or a process that made another
+    #: participant before).
+    supervisor_transport: str = "unknown"
 
     @property
     def ok(self) -> bool:
@@ -206,24 +217,16 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
     if bag is not None and bag.exists():
         shutil.rmtree(bag)
     out.mkdir(parents=True, exist_ok=True)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
-    # this process (recorder, watcher) talks to the nodes over UDP on loopback, not Fast DDS shared memory: a
-    # supervisor starved under load let its shared-memory port fill, the nodes' writers then stopped delivering to
-    # it for good (39 of 5001 wheel loads recorded, the latched end of train never received: two trains "timeout")
-    # whereas a UDP reader that falls behind is repaired by the reliable protocol. The nodes keep their transports.
-    os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", SUPERVISOR_TRANSPORTS)
-    if "ROS_STATIC_PEERS" in env:
-        os.environ["ROS_STATIC_PEERS"] = env["ROS_STATIC_PEERS"]
     trains = [Train(s) for s in specs]
     logs: dict[str, Any] = {}
     name_of = log_name or (lambda s, kind: f"{s.name}_{kind}")
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain_id)
     nodes: list[Any] = []
     rec: BagRecorder | None = None
     counts: dict[str, int] = {}
     rec_cpu = 0.0
     concurrency: dict[str, Any] = {}
+    supervisor_transport = "not started"
 
     def start(t: Train, kind: str, params: Mapping[str, Any]) -> None:
         stem = name_of(t.spec, kind)
@@ -256,8 +259,15 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
             else:
                 start(t, "track_node", t.spec.track_params)
                 start(t, "vehicle_node", vehicle_params(t))
-        watcher = rclpy.create_node("clm_run_watch", context=ctx)
+        # this process's participant (recorder, watcher) talks to the nodes over UDP only; the nodes keep theirs
+        global _profile_loaded
+        sup_env = supervisor_participant_env(env)
+        with _environment(sup_env):
+            rclpy.init(context=ctx, domain_id=domain_id)
+            watcher = rclpy.create_node("clm_run_watch", context=ctx)  # the participant is created here
         nodes.append(watcher)
+        _profile_loaded = _profile_loaded or "FASTRTPS_DEFAULT_PROFILES_FILE" in sup_env
+        supervisor_transport = _own_transport()
         ex = EventsExecutor(context=ctx)
         ex.add_node(watcher)
         starters = {}
@@ -398,7 +408,89 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
         if bad and t.state == "done":
             t.state, t.reason = "failed", f"node(s) did not exit cleanly: {bad}; see the logs in {out}/"
     concurrency.update(_concurrency(trains))
-    return RunResult(trains, codes, counts, rec_cpu, concurrency, bag, domain_id)
+    return RunResult(trains, codes, counts, rec_cpu, concurrency, bag, domain_id, supervisor_transport)
+
+
+def supervisor_participant_env(env: Mapping[str, str], fresh: bool | None = None) -> dict[str, str]:
+    """The environment for the supervisor's own participant, given the nodes' ``env``: UDP only, as far as the nodes'.
+
+    With the nodes on ``LOCALHOST`` discovery, rmw_fastrtps (Jazzy) gives every participant Fast DDS shared memory
+    besides UDP, whatever ``FASTDDS_BUILTIN_TRANSPORTS`` says: a supervisor stopped for 6.5 s then blocked the track
+    node's answers (lag p99 3.75 s) and got nothing more after it resumed (an empty bag; the run waited out its
+    timeout for the latched end of train). So the supervisor's participant takes the ``SUBNET`` range (rmw_fastrtps
+    then leaves the transports to the profile), ``127.0.0.1`` (and the nodes' static peers) as static peers, and
+    :data:`SUPERVISOR_PROFILE`: UDP bound to the loopback interface, no multicast, so nothing leaves the host.
+
+    Fast DDS reads its profile file once per process, at the first participant. So this applies only where no
+    participant was made before in this process (``fresh``, default :func:`_fresh_for_profile`: ``clm demo`` and
+    ``clm fleet`` are fresh processes), and not with a user's own profile file (:data:`PROFILE_VARS`); otherwise
+    the participant keeps the nodes' ``LOCALHOST`` discovery (shared memory and UDP, never beyond the host), which
+    :attr:`RunResult.supervisor_transport` then says. With ``SUBNET`` discovery (pairs on several hosts) the
+    built-in transports are limited to UDPv4 (:data:`SUPERVISOR_TRANSPORTS`; a user's own setting kept).
+    """
+    out = {"ROS_AUTOMATIC_DISCOVERY_RANGE": env["ROS_AUTOMATIC_DISCOVERY_RANGE"]}
+    peers = [p for p in env.get("ROS_STATIC_PEERS", "").split(";") if p]
+    if out["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST":
+        if not any(v in os.environ for v in PROFILE_VARS) and (_fresh_for_profile() if fresh is None else fresh):
+            out.update({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
+                        "FASTRTPS_DEFAULT_PROFILES_FILE": str(SUPERVISOR_PROFILE)})
+            peers = ["127.0.0.1", *(p for p in peers if p != "127.0.0.1")]
+    else:
+        out["FASTDDS_BUILTIN_TRANSPORTS"] = os.environ.get("FASTDDS_BUILTIN_TRANSPORTS", SUPERVISOR_TRANSPORTS)
+    if peers:
+        out["ROS_STATIC_PEERS"] = ";".join(peers)
+    return out
+
+
+#: Whether this process made its first participant with :data:`SUPERVISOR_PROFILE` (then it is Fast DDS's default).
+_profile_loaded = False
+
+
+def _fresh_for_profile() -> bool:
+    """Whether Fast DDS will read :data:`SUPERVISOR_PROFILE` for the next participant of this process: no
+    participant was made before (no Fast DDS thread, ``dds.*``: a shared-memory participant leaves its watchdog
+    ``dds.shm.wdog`` behind), or the first one was made with it."""
+    if _profile_loaded:
+        return True
+    try:
+        names = [t.read_text().strip() for t in Path("/proc/self/task").glob("*/comm")]
+    except OSError:
+        return False
+    return bool(names) and not any(n.startswith("dds.") for n in names)
+
+
+@contextlib.contextmanager
+def _environment(values: Mapping[str, str]) -> Iterator[None]:
+    """Set ``values`` in this process's environment for the block, then put back what was there."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _own_transport() -> str:
+    """What this process's Fast DDS participants use, from ``/proc/self``: ``shared memory and UDP`` if one maps a
+    shared-memory port, else ``UDP on loopback`` if every UDP socket of the process is bound to 127.x, else ``UDP``
+    (``unknown`` without ``/proc``)."""
+    try:
+        if "/dev/shm/fastrtps_port" in Path("/proc/self/maps").read_text():
+            return "shared memory and UDP"
+        links = []
+        for fd in os.listdir("/proc/self/fd"):
+            with contextlib.suppress(OSError):  # the listing's own descriptor is gone by now
+                links.append(os.readlink(f"/proc/self/fd/{fd}"))
+        inodes = {x[8:-1] for x in links if x.startswith("socket:[")}
+        rows = [r.split() for r in Path("/proc/self/net/udp").read_text().splitlines()[1:]]
+    except OSError:
+        return "unknown"
+    mine = [r[1] for r in rows if len(r) > 9 and r[9] in inodes]  # local address: hex IPv4 (little endian):port
+    return "UDP on loopback" if mine and all(a.split(":")[0].endswith("7F") for a in mine) else "UDP"
 
 
 def _answers_matched(node: Any, t: Train) -> bool:

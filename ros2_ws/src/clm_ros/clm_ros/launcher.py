@@ -140,6 +140,7 @@ def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float, ready_timeo
         "feedback_total": int(v.get("train.feedback_total", 0)),
         "vehicle_node": {k.removeprefix("train."): number(x) for k, x in v.items() if k.startswith("train.")},
         "exit_codes": r.exit_codes,
+        "supervisor_transport": r.supervisor_transport,
         "scheduling": {"vehicle_node": v.get("scheduling", "unknown"),
                        "track_node": summary.get("track_node_diagnostics", {}).get("scheduling", "unknown")},
         "loadavg": list(os.getloadavg()),
