@@ -42,8 +42,9 @@ def test_demo_end_to_end(tmp_path: Path, ros_domain_id: int) -> None:
     assert v["model_us_per_message"] > 0 and math.isfinite(v["lag_median_s"])
     assert s["exit_codes"] == {"vehicle_node": 0, "track_node": 0}
     cpu = s["cpu_us_per_message"]
-    # over the messages from when the harness first saw the train running (at load 4.5 it saw it 654 messages in)
-    assert set(cpu) == {"recorder", "track_node", "vehicle_node", "messages"} and 0 < cpu["messages"] <= 1001
+    # over the messages from the train's start time (the harness opens the window 20 ms before it; when it opened
+    # it on the train's first recorded messages, a starved recorder at load 4.5 saw the train 654 messages in)
+    assert set(cpu) == {"recorder", "track_node", "vehicle_node", "messages"} and 500 < cpu["messages"] <= 1001
     assert s["ros_domain_id"] == ros_domain_id
     assert {"sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png"} <= {p.name for p in out.iterdir()}
 
