@@ -208,8 +208,9 @@ def test_supervisor_participant_env_rules(monkeypatch: pytest.MonkeyPatch) -> No
     assert supervisor_participant_env(subnet, fresh=True) == {**subnet, "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
     monkeypatch.setenv("FASTDDS_BUILTIN_TRANSPORTS", "LARGE_DATA")
     assert supervisor_participant_env(subnet)["FASTDDS_BUILTIN_TRANSPORTS"] == "LARGE_DATA"
-    assert supervisor_participant_env({**local, "ROS_STATIC_PEERS": "127.0.0.1;h2"}, fresh=True)[
-        "ROS_STATIC_PEERS"] == "127.0.0.1;h2"
+    # its own trains are on this host: loopback only, whatever peers the nodes have
+    assert supervisor_participant_env({**local, "ROS_STATIC_PEERS": "h2;h3"}, fresh=True)["ROS_STATIC_PEERS"] == \
+        "127.0.0.1"
 
 
 #: A supervisor-side participant made as the run harness makes it, in a process of its own; prints what it used

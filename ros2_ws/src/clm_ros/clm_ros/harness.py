@@ -257,13 +257,9 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
                                     f"{out}/{name_of(t.spec, kind)}.log")
 
     try:
-        for t in trains:  # every process at once; each vehicle waits for its own track node and the start signal
-            if t.spec.pair_process:
-                start(t, "pair", {**t.spec.track_params, **vehicle_params(t)})
-            else:
-                start(t, "track_node", t.spec.track_params)
-                start(t, "vehicle_node", vehicle_params(t))
-        # this process's participant (recorder, watcher) talks to the nodes over UDP only; the nodes keep theirs
+        # this process's participant (recorder, watcher) talks to the nodes over UDP only; the nodes keep theirs.
+        # It is made before the nodes, so it has the lowest participant id of the host, which every node's initial
+        # peers reach (rmw_fastrtps: ids 0 to 31 on one host).
         global _profile_loaded
         sup_env = supervisor_participant_env(env)
         with _environment(sup_env):
@@ -272,6 +268,12 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
         nodes.append(watcher)
         _profile_loaded = _profile_loaded or "FASTRTPS_DEFAULT_PROFILES_FILE" in sup_env
         supervisor_transport = _own_transport()
+        for t in trains:  # every process at once; each vehicle waits for its own track node and the start signal
+            if t.spec.pair_process:
+                start(t, "pair", {**t.spec.track_params, **vehicle_params(t)})
+            else:
+                start(t, "track_node", t.spec.track_params)
+                start(t, "vehicle_node", vehicle_params(t))
         ex = EventsExecutor(context=ctx)
         ex.add_node(watcher)
         starters = {}
@@ -423,9 +425,9 @@ def supervisor_participant_env(env: Mapping[str, str], fresh: bool | None = None
 
     With the nodes on ``LOCALHOST`` discovery, rmw_fastrtps (Jazzy) gives every participant Fast DDS shared memory
     besides UDP, whatever ``FASTDDS_BUILTIN_TRANSPORTS`` says: a supervisor stopped for 6.5 s then blocked the track
-    node's answers (lag p99 3.75 s) and got nothing more after it resumed (an empty bag; the run waited out its
-    timeout for the latched end of train). So the supervisor's participant takes the ``SUBNET`` range (rmw_fastrtps
-    then leaves the transports to the profile), ``127.0.0.1`` (and the nodes' static peers) as static peers, and
+    node's answers (lag p99 3.75 s) and got nothing more after it resumed (the bag stopped growing; the run waited
+    out its timeout for the latched end of train). So the supervisor's participant takes the ``SUBNET`` range
+    (rmw_fastrtps then leaves the transports to the profile), ``127.0.0.1`` as its only static peer, and
     :data:`SUPERVISOR_PROFILE`: UDP bound to the loopback interface, no multicast, so nothing leaves the host.
 
     Fast DDS reads its profile file once per process, at the first participant. So this applies only where no
@@ -441,7 +443,7 @@ def supervisor_participant_env(env: Mapping[str, str], fresh: bool | None = None
         if not any(v in os.environ for v in PROFILE_VARS) and (_fresh_for_profile() if fresh is None else fresh):
             out.update({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
                         "FASTRTPS_DEFAULT_PROFILES_FILE": str(SUPERVISOR_PROFILE)})
-            peers = ["127.0.0.1", *(p for p in peers if p != "127.0.0.1")]
+            peers = ["127.0.0.1"]  # its own trains are on this host (others' supervisors record theirs)
     else:
         out["FASTDDS_BUILTIN_TRANSPORTS"] = os.environ.get("FASTDDS_BUILTIN_TRANSPORTS", SUPERVISOR_TRANSPORTS)
     if peers:
