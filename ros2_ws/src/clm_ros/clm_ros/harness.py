@@ -424,9 +424,10 @@ def supervisor_participant_env(env: Mapping[str, str], fresh: bool | None = None
     """The environment for the supervisor's own participant, given the nodes' ``env``: UDP only, as far as the nodes'.
 
     With the nodes on ``LOCALHOST`` discovery, rmw_fastrtps (Jazzy) gives every participant Fast DDS shared memory
-    besides UDP, whatever ``FASTDDS_BUILTIN_TRANSPORTS`` says: a supervisor stopped for 6.5 s then blocked the track
-    node's answers (lag p99 3.75 s) and got nothing more after it resumed (the bag stopped growing; the run waited
-    out its timeout for the latched end of train). So the supervisor's participant takes the ``SUBNET`` range
+    besides UDP, whatever ``FASTDDS_BUILTIN_TRANSPORTS`` says: a supervisor stopped for 6.5 s had its port re-made
+    under the same name by the nodes and got nothing more after it resumed (the bag stopped growing; the run waited
+    out its timeout for the latched end of train; the track node's answers were late too in one such run, p99
+    3.75 s). So the supervisor's participant takes the ``SUBNET`` range
     (rmw_fastrtps then leaves the transports to the profile), ``127.0.0.1`` as its only static peer, and
     :data:`SUPERVISOR_PROFILE`: UDP bound to the loopback interface, no multicast, so nothing leaves the host.
 
