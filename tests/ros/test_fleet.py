@@ -175,7 +175,7 @@ def test_fleet_recorder_far_behind_loses_nothing(tmp_path: Path, ros_domain_id: 
 
     Its participant is on UDP bound to loopback (``supervisor_transport``): on Fast DDS shared memory the nodes
     re-made the stopped supervisor's port under the same name, it received nothing after SIGCONT and the run
-    waited for the end of train until its timeout (2 of ~35 runs on 2026-12-04). The run's own timeout (120 s)
+    waited for the end of train until its timeout (2 of 36 runs on 2026-12-04). The run's own timeout (120 s)
     is within the test's wait, so a stalled run ends with its summary and reason, not a kill."""
     from clm_core.io.bags import BagReader
 

@@ -48,7 +48,7 @@ from clm_msgs.action import Calibrate
 from clm_ros.node_main import StopSignals, exit_process
 
 # the test's SIGINT ends the loop below as it ends a clm node (clm_ros.node_main): rclpy.spin's own SIGINT handling
-# followed by the interpreter's exit hung once in 10 stress runs (30 s, no output)
+# followed by the interpreter's exit hung in 2 of 10 stress runs (30 s, no output)
 faulthandler.register(signal.SIGUSR1, all_threads=True)  # the test asks for the stacks of a server that hangs
 rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
 stop = StopSignals()

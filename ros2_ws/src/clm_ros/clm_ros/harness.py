@@ -35,8 +35,8 @@ finished the train), ``failed`` and ``timeout``.
 
 The supervisor's own DDS participant (recorder, watcher) uses UDP only, never
 Fast DDS shared memory (:func:`supervisor_participant_env`): a supervisor
-starved by the scheduler, or stopped, must neither block the nodes' writers
-nor lose the nodes for good, which a full shared-memory port did
+starved by the scheduler, or stopped, must not lose the nodes for good, which
+it did on shared memory when the nodes re-made its port under the same name
 (docs/fleet.md). :attr:`RunResult.supervisor_transport` says what it used.
 """
 
@@ -362,7 +362,7 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
         t0 = time.monotonic()
         rec_cpu0 = time.process_time()
         while any(t.state not in ENDED for t in trains):
-            # a train's CPU window opens just before its start time (CPU_LEAD), not when its first messages reach
+            # a train's CPU window opens just before its start time (CPU_LEAD_NS), not when its first messages reach
             # the recorder: a starved supervisor saw a demo's train first 654 of 1001 messages in
             due = [t.start_ns - CPU_LEAD_NS - time.time_ns() for t in trains if t.state == "running" and not t.cpu0]
             spin_for(min(0.05, max(0.0, min(due) / 1e9)) if due else 0.05)
