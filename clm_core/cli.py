@@ -17,18 +17,15 @@ their computing modules inside ``run``), so ``clm --help`` answers quickly.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import faulthandler
 import importlib
 import pkgutil
-import signal
 import sys
-import threading
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
 from clm_core import __version__, commands
 from clm_core.errors import ClmError
+from clm_core.stacks import dump_stacks_on_signal
 
 #: Entry-point group of sub-commands from other distributions (the ROS layer).
 ENTRY_POINT_GROUP = "clm.commands"
@@ -93,9 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ``kill -USR1 <pid>`` of a running ``clm`` process prints the Python stack of each of its threads to stderr,
     and the process goes on: how a run that hangs is diagnosed.
     """
-    if hasattr(signal, "SIGUSR1") and threading.current_thread() is threading.main_thread():
-        with contextlib.suppress(OSError, ValueError):  # no file descriptor behind stderr (main() called in-process
-            faulthandler.register(signal.SIGUSR1, all_threads=True)  # under a capture): no stack dumps, that is all
+    dump_stacks_on_signal()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

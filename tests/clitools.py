@@ -18,6 +18,10 @@ import termios
 import time
 from collections.abc import Mapping, Sequence
 
+import pytest
+
+from clm_core.stacks import STACKS_SIGNAL
+
 CLM = [sys.executable, "-m", "clm_core.cli"]
 
 
@@ -26,6 +30,22 @@ def run_clm(args: Sequence[str], env: Mapping[str, str] | None = None, timeout: 
     """``clm ARGS`` in a subprocess with pipes (no terminal)."""
     return subprocess.run([*CLM, *args], capture_output=True, text=True, env=None if env is None else dict(env),
                           timeout=timeout, cwd=cwd)
+
+
+def wait_or_stacks(proc: subprocess.Popen[str], timeout: float, what: str = "") -> tuple[str, str]:
+    """Wait ``timeout`` s for ``proc`` to exit and return its (stdout, stderr); past that, fail the test with every
+    thread's stack of the process (``kill -USR1``, :mod:`clm_core.stacks`: a clm command or node prints them to
+    stderr), then killed, and its output. ``what`` names the wait in the failure."""
+    try:
+        return proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        if STACKS_SIGNAL is not None:
+            proc.send_signal(STACKS_SIGNAL)  # a process without the handler just ends
+            time.sleep(2.0)
+        proc.kill()
+        out, err = proc.communicate()
+        pytest.fail(f"{what or proc.args!r}: still running after {timeout} s; its threads then (SIGUSR1)\n"
+                    f"--- stdout\n{(out or '')[-20000:]}\n--- stderr\n{(err or '')[-20000:]}")
 
 
 def input_error(proc: subprocess.CompletedProcess[str]) -> str:

@@ -34,6 +34,8 @@ import pytest
 from clm_ros import processes
 from clm_ros.errors import ClmRosError
 
+from tests.clitools import wait_or_stacks
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -150,15 +152,9 @@ class RosPython:
 
     @staticmethod
     def wait(proc: subprocess.Popen[str], timeout: float) -> tuple[str, str]:
-        """Wait for ``proc``; on timeout kill it and fail the test with its output."""
-        try:
-            return proc.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, err = proc.communicate()
-            pytest.fail(
-                f"process {proc.args!r} did not finish within {timeout} s\n--- stdout\n{out}\n--- stderr\n{err}"
-            )
+        """Wait for ``proc``; on timeout fail the test with its threads' stacks and its output
+        (:func:`tests.clitools.wait_or_stacks`)."""
+        return wait_or_stacks(proc, timeout, f"process {proc.args!r}")
 
     def cleanup(self) -> None:
         """Kill the processes this helper started that are still running."""

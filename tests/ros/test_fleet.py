@@ -27,7 +27,7 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from tests.clitools import CLM, run_clm
+from tests.clitools import CLM, run_clm, wait_or_stacks
 
 DURATION = 0.3
 N_MSG = round(DURATION * 1000) + 1
@@ -197,14 +197,7 @@ def test_fleet_recorder_far_behind_loses_nothing(tmp_path: Path, ros_domain_id: 
             time.sleep(6.5)
         finally:
             proc.send_signal(signal.SIGCONT)
-        try:
-            stdout, stderr = proc.communicate(timeout=300)
-        except subprocess.TimeoutExpired:  # past its own timeout: every thread's stack, then fail
-            proc.send_signal(signal.SIGUSR1)  # clm_core.cli: faulthandler
-            time.sleep(2.0)
-            proc.kill()
-            stdout, stderr = proc.communicate()
-            pytest.fail(f"clm fleet hung 300 s after SIGCONT; its threads then:\n{stderr[-20000:]}")
+        stdout, stderr = wait_or_stacks(proc, 300, "clm fleet after SIGCONT")  # past its own timeout: hung
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -18,7 +18,6 @@ as rclpy ignores an answer to a request it no longer waits for).
 from __future__ import annotations
 
 import signal
-import subprocess
 import time
 from collections.abc import Callable
 from typing import Any
@@ -33,6 +32,8 @@ from clm_msgs.action import Calibrate
 from clm_ros.reliable_client import GoalTracker, answered, transition_confirmed
 from rclpy.action import ActionClient
 from rclpy.task import Future
+
+from tests.clitools import wait_or_stacks
 
 NAME = "/clm_test/calibrate"
 #: What the track node logs once per configure.
@@ -125,14 +126,7 @@ def _runs(proc: Any) -> list[str]:
     """Stop the server (SIGINT) and return its executions; one that does not exit within 30 s fails the test with
     every thread's stack (SIGUSR1: faulthandler) and its output."""
     proc.send_signal(signal.SIGINT)
-    try:
-        out, _ = proc.communicate(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.send_signal(signal.SIGUSR1)
-        time.sleep(2.0)
-        proc.kill()
-        out, err = proc.communicate()
-        pytest.fail(f"the action server did not exit 30 s after SIGINT\n--- stdout\n{out}\n--- its threads\n{err}")
+    out, _ = wait_or_stacks(proc, 30, "the action server after SIGINT")
     return [line for line in out.splitlines() if line.startswith("executing")]
 
 

@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import math
+import signal
 
 import numpy as np
 import pytest
@@ -75,6 +76,21 @@ def test_node_equals_offline_bit_for_bit(node_and_driver) -> None:  # type: igno
     assert 0.2 * 85e3 < max(drv.sleepers[-1].soil_force) < 85e3
     d = drv.latest_diagnostics()
     assert d["accepted"] == "400" and d["rejected"] == "0" and d["published"] == "400"
+
+
+def test_sigusr1_prints_every_threads_stack_and_the_node_goes_on(node_and_driver) -> None:  # type: ignore[no-untyped-def]
+    """``kill -USR1`` (clm_core.stacks, run_node): the stacks on stderr, the node serves on and exits 0 on SIGTERM."""
+    proc, drv = node_and_driver
+    stream = _stream(200)
+    drv.send(_msgs(stream[:100]), expected_answers=100)
+    proc.send_signal(signal.SIGUSR1)
+    drv.send(_msgs(stream[100:]), expected_answers=100)  # served on after the dump
+    assert len(drv.sleepers) == 200
+    proc.terminate()
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert "most recent call first" in err and "node_main.py" in err, err  # the main thread's stack, in run_node
+    assert err.count("Thread 0x") + err.count("Current thread 0x") >= 2, err  # every thread, not just one
 
 
 def test_bad_input_rejected_counted_logged_once(node_and_driver) -> None:  # type: ignore[no-untyped-def]

@@ -19,6 +19,9 @@ vehicle and a track node on one executor, :mod:`clm_ros.fleet_pair`):
 - Fast DDS publishes synchronously unless ``RMW_FASTRTPS_PUBLICATION_MODE``
   says otherwise (:data:`PUBLICATION_MODE`), with the profile
   :data:`FASTDDS_PROFILE` unless the environment names one;
+- ``kill -USR1 <pid>`` prints every thread's Python stack to stderr and the
+  process goes on (:func:`clm_core.stacks.dump_stacks_on_signal`): how a node
+  that hangs is diagnosed;
 - the heap built at start-up frozen out of the garbage collector's reach
   (:func:`freeze_heap`: no 0.1-s collection pause in the middle of a run);
 - once the node and its executor exist, every thread of the process under
@@ -94,6 +97,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import get_default_context
 
 from clm_core.errors import ClmError
+from clm_core.stacks import dump_stacks_on_signal
 from clm_ros.node_log import bounded
 from clm_ros.realtime import apply_fifo, release_fifo
 from clm_ros.shm import clean_stale_ports, domain_of_environment
@@ -197,6 +201,7 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
         a console entry point; also done whenever a node's ``abandoned()``
         is true).
     """
+    dump_stacks_on_signal()
     stop = StopSignals()
     stop.install(interrupt=True)  # during start-up a signal interrupts at once
     os.environ.setdefault("RMW_FASTRTPS_PUBLICATION_MODE", PUBLICATION_MODE)
