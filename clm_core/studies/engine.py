@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
+from clm_core import environ
 from clm_core.errors import ClmError, InputError
 
 #: Seconds to wait for a remote scheduler's workers.
@@ -160,7 +161,7 @@ class Engine:
         self.info = EngineInfo()
         self._cluster: Any = None
         self._client: Any = None
-        self._environ: dict[str, str | None] = {}
+        self._environ: environ.Saved = {}
 
     def __enter__(self) -> Engine:
         dist = _distributed()
@@ -174,7 +175,7 @@ class Engine:
                 # a nanny writes its pre-spawn environment into *this* process's os.environ before it spawns
                 # a worker (distributed/nanny.py); numba then refuses to compile with NUMBA_NUM_THREADS changed
                 # under its running thread pool: the caller's environment is put back after every spawn
-                self._environ = {k: os.environ.get(k) for k in WORKER_CONFIG["distributed.nanny.pre-spawn-environ"]}
+                self._environ = environ.save(WORKER_CONFIG["distributed.nanny.pre-spawn-environ"])
                 with dask.config.set(WORKER_CONFIG):
                     self._cluster = dist.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                                       host="127.0.0.1", dashboard_address=None,
@@ -259,11 +260,7 @@ class Engine:
 
     def _restore_environ(self) -> None:
         """Put back the variables a nanny's pre-spawn environment overwrote in this process."""
-        for k, v in self._environ.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        environ.restore(self._environ)
 
     def worker_cpu(self) -> float:
         """CPU time used so far by the worker processes, all threads, summed [s] (``getrusage``)."""

@@ -218,6 +218,7 @@ def test_supervisor_participant_env_rules(monkeypatch: pytest.MonkeyPatch) -> No
 SUPERVISOR_SNIPPET = """
     import os, sys, time
     import rclpy
+    from clm_core.environ import environment
     from clm_ros import harness
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -231,7 +232,7 @@ SUPERVISOR_SNIPPET = """
         rclpy.shutdown(context=c0)
     env = harness.supervisor_participant_env(os.environ)
     ctx = Context()
-    with harness._environment(env):
+    with environment(env):
         rclpy.init(context=ctx, domain_id=domain)
         node = rclpy.create_node("sup", context=ctx)
     got = []

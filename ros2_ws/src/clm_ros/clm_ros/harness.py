@@ -49,11 +49,12 @@ import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from clm_core.environ import environment
 from clm_ros.processes import proc_cpu_s, ros_args, stop_processes
 
 #: How often the recorder takes the messages that have arrived [s] (their log times are their reception times).
@@ -262,7 +263,7 @@ def run_trains(out: Path, specs: list[TrainSpec], *, domain_id: int, env: dict[s
         # peers reach (rmw_fastrtps: ids 0 to 31 on one host).
         global _profile_loaded
         sup_env = supervisor_participant_env(env)
-        with _environment(sup_env):
+        with environment(sup_env):
             rclpy.init(context=ctx, domain_id=domain_id)
             watcher = rclpy.create_node("clm_run_watch", context=ctx)  # the participant is created here
         nodes.append(watcher)
@@ -467,21 +468,6 @@ def _fresh_for_profile() -> bool:
     except OSError:
         return False
     return bool(names) and not any(n.startswith("dds.") for n in names)
-
-
-@contextlib.contextmanager
-def _environment(values: Mapping[str, str]) -> Iterator[None]:
-    """Set ``values`` in this process's environment for the block, then put back what was there."""
-    saved = {k: os.environ.get(k) for k in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def _own_transport() -> str:
