@@ -5,6 +5,11 @@ How a process that hangs is diagnosed without stopping it: the ``clm`` command
 (``clm_ros.node_main.run_node``) call :func:`dump_stacks_on_signal` at start.
 The stacks go to stderr (its log file under ``clm demo`` and ``clm fleet``),
 and the process goes on as before.
+
+:func:`exit_with_stacks_after` bounds how long a process may take to end: a
+clm node arms it when it is asked to stop, so that a shut-down that hangs (in
+DDS, in the interpreter's finalization) ends with every thread's stack on
+stderr and exit code 1 instead of never.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ import faulthandler
 import signal
 import threading
 
-__all__ = ["STACKS_SIGNAL", "dump_stacks_on_signal"]
+__all__ = ["STACKS_SIGNAL", "cancel_exit_deadline", "dump_stacks_on_signal", "exit_with_stacks_after"]
 
 #: The signal that asks for the stacks (absent on Windows: nothing is registered there).
 STACKS_SIGNAL: int | None = getattr(signal, "SIGUSR1", None)
@@ -33,3 +38,28 @@ def dump_stacks_on_signal() -> bool:
         faulthandler.register(STACKS_SIGNAL, all_threads=True)
         return True
     return False
+
+
+def exit_with_stacks_after(seconds: float) -> bool:
+    """Arm the process's exit deadline: if it still runs ``seconds`` s from now, ``Timeout (h:mm:ss)!`` and the
+    stack of every thread go to stderr and it ends at once with exit code 1 (``faulthandler.dump_traceback_later``
+    with ``exit``, a C thread: it needs neither the GIL nor a responsive main thread). Arming again moves the
+    deadline; :func:`cancel_exit_deadline` disarms it. Returns whether it is armed (False where stderr has no file
+    descriptor).
+
+    Parameters
+    ----------
+    seconds : float
+        Time left to the process [s], > 0.
+    """
+    if not seconds > 0:
+        raise ValueError(f"exit deadline {seconds!r} s: must be > 0")
+    with contextlib.suppress(OSError, ValueError, AttributeError):  # stderr without a file descriptor
+        faulthandler.dump_traceback_later(seconds, exit=True)
+        return True
+    return False
+
+
+def cancel_exit_deadline() -> None:
+    """Disarm :func:`exit_with_stacks_after` (nothing happens when none is armed)."""
+    faulthandler.cancel_dump_traceback_later()

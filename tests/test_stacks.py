@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from clm_core.stacks import STACKS_SIGNAL, dump_stacks_on_signal
+from clm_core.stacks import STACKS_SIGNAL, dump_stacks_on_signal, exit_with_stacks_after
 
 # a clm command that waits (the stacks are asked for while it runs), then exits 0 once its stdin closes
 WAITER = """
@@ -50,3 +50,39 @@ def test_not_registered_off_the_main_thread() -> None:
     t.start()
     t.join()
     assert got == [False]
+
+
+# arms the exit deadline (argv[1] s), optionally disarms it (argv[2] == "cancel"), then waits argv[3] s in a thread
+DEADLINE = """
+import sys, threading, time
+from clm_core.stacks import cancel_exit_deadline, exit_with_stacks_after
+assert exit_with_stacks_after(float(sys.argv[1]))
+if sys.argv[2] == "cancel":
+    cancel_exit_deadline()
+def stuck_in_teardown():
+    time.sleep(float(sys.argv[3]))
+t = threading.Thread(target=stuck_in_teardown)
+t.start()
+t.join()
+print("ended", flush=True)
+"""
+
+
+def test_exit_deadline_ends_a_stuck_process_with_its_stacks() -> None:
+    proc = subprocess.run([sys.executable, "-c", DEADLINE, "1.0", "keep", "60"], capture_output=True, text=True,
+                          timeout=120)
+    # ended by the deadline while the thread still waited (it never printed "ended"), with its stack
+    assert proc.returncode == 1 and proc.stdout == "", (proc.returncode, proc.stdout, proc.stderr)
+    assert "Timeout (0:00:01)!" in proc.stderr and "in stuck_in_teardown" in proc.stderr, proc.stderr
+
+
+def test_exit_deadline_cancelled_lets_the_process_end_itself() -> None:
+    proc = subprocess.run([sys.executable, "-c", DEADLINE, "1.0", "cancel", "2.5"], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0 and proc.stdout == "ended\n" and "Timeout" not in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("seconds", [0.0, -1.0, float("nan")])
+def test_exit_deadline_must_be_positive(seconds: float) -> None:
+    with pytest.raises(ValueError, match="must be > 0"):
+        exit_with_stacks_after(seconds)

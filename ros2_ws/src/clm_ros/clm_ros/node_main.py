@@ -41,7 +41,13 @@ vehicle and a track node on one executor, :mod:`clm_ros.fleet_pair`):
   grace period to finish or abort what runs; a second signal cuts it short;
 - then, in this order: the node's ``stop`` (it stops its own threads; they
   never outlive it), the executor, the node, the context (the DDS
-  participant leaves the graph, announced to its peers).
+  participant leaves the graph, announced to its peers);
+- from the first stop signal, and from the start of that shut-down whatever
+  ended the spinning, the process has :data:`EXIT_DEADLINE_S` s to end: past
+  it, every thread's stack goes to stderr (``Timeout (0:00:20)!`` first) and
+  the process ends with exit code 1 (:func:`clm_core.stacks.exit_with_stacks_after`).
+  A shut-down takes 0.2-1.5 s (measured); one that hangs (in DDS, in the
+  interpreter's finalization) must not keep a stopped node alive for ever.
 
 A node used with it may define (all optional; with several nodes, each one's):
 
@@ -97,13 +103,13 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import get_default_context
 
 from clm_core.errors import ClmError
-from clm_core.stacks import dump_stacks_on_signal
+from clm_core.stacks import dump_stacks_on_signal, exit_with_stacks_after
 from clm_ros.node_log import bounded
 from clm_ros.realtime import apply_fifo, release_fifo
 from clm_ros.shm import clean_stale_ports, domain_of_environment
 
-__all__ = ["FASTDDS_PROFILE", "PUBLICATION_MODE", "START_ERRORS", "StopSignals", "exit_process", "freeze_heap",
-           "run_node"]
+__all__ = ["EXIT_DEADLINE_S", "FASTDDS_PROFILE", "PUBLICATION_MODE", "START_ERRORS", "StopSignals", "exit_process",
+           "freeze_heap", "run_node"]
 
 #: Fast DDS publication mode of the node processes unless the environment sets one: a synchronous write
 #: sends from the publishing thread; the asynchronous default hands every message to a thread of Fast DDS,
@@ -117,6 +123,10 @@ PUBLICATION_MODE = "SYNCHRONOUS"
 #: or ``FASTDDS_DEFAULT_PROFILES_FILE``): reliable writers coalesce their per-sample NACK-suppression timer
 #: (5 ms instead of 0), ~51 -> ~30 us of CPU per publish to a reliable reader (see the file).
 FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
+
+#: Longest time from a stop signal (or the start of the shut-down) to the process's end [s]; past it the stacks go
+#: to stderr and the process ends with exit code 1. A clean shut-down takes 0.2-1.5 s on the busy 2-core machine.
+EXIT_DEADLINE_S = 20.0
 
 #: Errors of a node's construction that mean an invalid setting: printed as one line, exit code 2.
 START_ERRORS: tuple[type[Exception], ...] = (ClmError, ValueError, InvalidParameterValueException)
@@ -133,9 +143,16 @@ class StopSignals:
         The first signal received.
     count : int
         Signals received so far (a second one cuts a node's ``drain`` short).
+
+    Parameters
+    ----------
+    deadline : float, optional
+        Seconds the process has to end from the first signal
+        (:func:`clm_core.stacks.exit_with_stacks_after`); None: no deadline.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, deadline: float | None = None) -> None:
+        self.deadline = deadline
         self.event = threading.Event()
         self.signum: int | None = None
         self.count = 0
@@ -159,6 +176,8 @@ class StopSignals:
     def _handler(self, signum: int, frame: FrameType | None) -> None:
         if self.signum is None:
             self.signum = signum
+            if self.deadline is not None:
+                exit_with_stacks_after(self.deadline)
         self.count += 1
         self.event.set()
         if self._interrupt:
@@ -202,8 +221,6 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
         is true).
     """
     dump_stacks_on_signal()
-    stop = StopSignals()
-    stop.install(interrupt=True)  # during start-up a signal interrupts at once
     os.environ.setdefault("RMW_FASTRTPS_PUBLICATION_MODE", PUBLICATION_MODE)
     if not ({"FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE"} & os.environ.keys()) and \
             FASTDDS_PROFILE.is_file():
@@ -211,11 +228,14 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
     nodes: tuple[Any, ...] = ()
     executor: Executor | None = None
     code = 0
-    stale = clean_stale_ports()  # before the participant opens the domain's ports (issue 26.3)
-    if stale:
-        print(f"{name}: removed {len(stale)} stale Fast DDS shared-memory file(s) of domain {domain_of_environment()} "
-              f"(no live process mapped them): {bounded(', '.join(stale), 200)}", file=sys.stderr)
+    stop = StopSignals(deadline=EXIT_DEADLINE_S)
+    stop.install(interrupt=True)  # during start-up a signal interrupts at once (everything below is in the try)
     try:
+        stale = clean_stale_ports()  # before the participant opens the domain's ports (issue 26.3)
+        if stale:
+            print(f"{name}: removed {len(stale)} stale Fast DDS shared-memory file(s) of domain "
+                  f"{domain_of_environment()} (no live process mapped them): {bounded(', '.join(stale), 200)}",
+                  file=sys.stderr)
         rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
         try:
             made = make(stop)
@@ -238,6 +258,7 @@ def run_node(make: Callable[[StopSignals], Any], args: Sequence[str] | None = No
         pass
     finally:
         stop.install(interrupt=False)
+        exit_with_stacks_after(EXIT_DEADLINE_S)  # whatever ended the spinning: the shut-down cannot hang for ever
         _leave_realtime(nodes)  # (again: an exception ended the spinning)
         for node in _having(nodes, "stop"):
             node.stop()
