@@ -126,27 +126,43 @@ def rss_fds(pid: int) -> tuple[float, int]:
 
 
 class Control:
-    """Lifecycle transitions and parameter updates of the node through its services."""
+    """Lifecycle transitions and parameter updates of the node through its services; a lost answer neither hangs
+    the soak nor repeats a transition (clm_ros.reliable_client, as every client of the suite)."""
 
     def __init__(self, lis: Listener) -> None:
-        from lifecycle_msgs.srv import ChangeState
+        from lifecycle_msgs.srv import ChangeState, GetState
         from rcl_interfaces.srv import SetParameters
 
         self.lis = lis
         self.change = lis.node.create_client(ChangeState, "/clm_track_node/change_state")
+        self.getstate = lis.node.create_client(GetState, "/clm_track_node/get_state")
         self.setp = lis.node.create_client(SetParameters, "/clm_track_node/set_parameters")
 
-    def _call(self, cli: Any, req: Any) -> Any:
+    def _until(self, done: Any, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while not done() and time.monotonic() < end:
+            self.lis.spin_for(0.02)
+
+    def _query(self, cli: Any, req: Any) -> Any:
+        """The answer to a request that changes nothing when taken twice (sent again while unanswered)."""
+        from clm_ros.reliable_client import RESEND_S, answered
+
         self.lis.wait(cli.service_is_ready, 30, "service")
-        fut = cli.call_async(req)
-        self.lis.wait(fut.done, 60, "service answer")
-        return fut.result()
+        return answered(cli, req, self._until, 60, RESEND_S)
+
+    def state(self) -> str:
+        from lifecycle_msgs.srv import GetState
+
+        return str(self._query(self.getstate, GetState.Request()).current_state.label)
 
     def transition(self, label: str) -> bool:
+        from clm_ros.reliable_client import transition_confirmed
         from lifecycle_msgs.msg import Transition
         from lifecycle_msgs.srv import ChangeState
 
-        return bool(self._call(self.change, ChangeState.Request(transition=Transition(label=label))).success)
+        self.lis.wait(self.change.service_is_ready, 30, "service")
+        req = ChangeState.Request(transition=Transition(label=label))
+        return bool(transition_confirmed(lambda: self.change.call_async(req), self.state, label, self._until, 60))
 
     def set_double(self, name: str, value: float) -> bool:
         from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
@@ -154,7 +170,7 @@ class Control:
 
         req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
             type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
-        return bool(self._call(self.setp, req).results[0].successful)
+        return bool(self._query(self.setp, req).results[0].successful)  # the same value twice: one outcome
 
 
 def soak(a: argparse.Namespace, log_dir: Path) -> dict[str, Any]:

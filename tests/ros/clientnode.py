@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 import rclpy
-from clm_ros.reliable_client import RESEND_S, answered
+from clm_ros.reliable_client import RESEND_S, answered, transition_confirmed
 from rclpy.context import Context
 from rclpy.executors import Executor, SingleThreadedExecutor
 
@@ -23,6 +23,10 @@ from rclpy.executors import Executor, SingleThreadedExecutor
 #: remedies: clm_ros.reliable_client, docs/ros-nodes.md "Service and action races"). Only for requests that change
 #: nothing: a transition sent twice would be a second transition (clm_ros.reliable_client.transition_confirmed).
 RESEND_QUERY = RESEND_S
+
+#: ``lifecycle_msgs/Transition`` ids by label (the labels of clm_ros.reliable_client.TRANSITION_GOALS).
+TRANSITION_IDS = {"configure": 1, "cleanup": 2, "activate": 3, "deactivate": 4, "unconfigured_shutdown": 5,
+                  "inactive_shutdown": 6, "active_shutdown": 7}
 
 
 def answer(cli: Any, request: Any, until: Callable[[Callable[[], bool], float], None], timeout: float,
@@ -117,6 +121,38 @@ class ClientNode:
 
             try:
                 return answer(cli, request, until, timeout, resend_after)
+            except TimeoutError as exc:
+                pytest.fail(f"{exc} {self.progress_note()}".rstrip() + self._outputs())
+        finally:
+            self.node.destroy_client(cli)
+
+    def state(self, node: str) -> str:
+        """Lifecycle state label of ``node`` (``get_state``, a query: sent again while unanswered)."""
+        from lifecycle_msgs.srv import GetState
+
+        return str(self.call(GetState, f"{node}/get_state", GetState.Request(), resend_after=RESEND_QUERY)
+                   .current_state.label)
+
+    def transition(self, node: str, name: str, timeout: float | None = None) -> bool:
+        """Lifecycle transition ``name`` (``configure``, ``activate``, ...) of ``node``; whether it succeeded. A lost
+        answer is settled by the node's state, never by sending the transition again blindly
+        (:func:`clm_ros.reliable_client.transition_confirmed`)."""
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+
+        req = ChangeState.Request(transition=Transition(id=TRANSITION_IDS[name]))
+        cli = self.node.create_client(ChangeState, f"{node}/change_state")
+        timeout = self.timeout if timeout is None else timeout
+        try:
+            self.wait_for(cli.service_is_ready, f"service {node}/change_state", timeout)
+
+            def until(done: Callable[[], bool], seconds: float) -> None:
+                end = time.monotonic() + seconds
+                self.wait_for(lambda: done() or time.monotonic() > end, f"transition {name} of {node}", seconds + 1.0)
+
+            try:
+                return transition_confirmed(lambda: cli.call_async(req), lambda: self.state(node), name, until,
+                                            timeout)
             except TimeoutError as exc:
                 pytest.fail(f"{exc} {self.progress_note()}".rstrip() + self._outputs())
         finally:

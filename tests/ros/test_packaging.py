@@ -394,7 +394,6 @@ try:
     from clientnode import RESEND_QUERY, ClientNode
     from clm_msgs.msg import WheelLoads
     from diagnostic_msgs.msg import DiagnosticArray
-    from lifecycle_msgs.srv import GetState
     from rcl_interfaces.srv import GetParameters
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -483,8 +482,8 @@ def test_track_node_takes_every_demo_parameter(client, ros_env: dict[str, str], 
     c.node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     for name in (f"/{TRACK_NODE}", f"/line1/{TRACK_NODE}"):
         _assert_applied(expected, c.parameters(name, sorted(expected)), name)
-        state = c.call(GetState, f"{name}/get_state", GetState.Request(), resend_after=RESEND_QUERY)
-        assert state.current_state.label == "active", f"{name} autostart: {state.current_state.label}"
+        state = c.state(name)
+        assert state == "active", f"{name} autostart: {state}"
     # it runs: both publish diagnostics at the file's period
     c.wait_for(lambda: len(diags) >= 4, "/diagnostics of the track nodes", TIMEOUT)
     assert all(s.hardware_id == "clm_core" for d in diags for s in d.status)

@@ -22,6 +22,7 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
+from clientnode import RESEND_QUERY
 from driver import Driver, status_dict, track_node
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
@@ -132,8 +133,8 @@ def test_shutdown_from_inactive_and_unconfigured(ros_python, ros_domain_id, path
         assert not r.successful and "not positive semi-definite" in r.reason
         assert drv.set_double("track.kb", 60e6).successful
         # a transition that does not exist here is refused; the node keeps running
-        assert not drv.call(ChangeState, "change_state", ChangeState.Request(
-            transition=Transition(id=99))).success
+        assert not drv.call(ChangeState, "change_state", ChangeState.Request(  # refused: changes nothing, so resent
+            transition=Transition(id=99)), resend_after=RESEND_QUERY).success
         assert not drv.transition("activate")
         assert run.proc.poll() is None and drv.state() == "unconfigured"
         if path == "inactive":

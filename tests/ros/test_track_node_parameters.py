@@ -16,6 +16,7 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
+from clientnode import RESEND_QUERY
 from clm_ros.conversions import rclpy_wheel_loads
 from driver import track_node
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
@@ -48,11 +49,13 @@ def _value(v: object) -> ParameterValue:
 def _set_atomically(drv, **values: object):  # type: ignore[no-untyped-def]
     req = SetParametersAtomically.Request(parameters=[Parameter(name=k.replace("__", "."), value=_value(v))
                                                       for k, v in values.items()])
-    return drv.call(SetParametersAtomically, "set_parameters_atomically", req).result
+    # the same values again are the same outcome: resent while unanswered (a lost answer must not fail the test)
+    return drv.call(SetParametersAtomically, "set_parameters_atomically", req, resend_after=RESEND_QUERY).result
 
 
 def _get(drv, *names: str) -> list[object]:  # type: ignore[no-untyped-def]
-    vals = drv.call(GetParameters, "get_parameters", GetParameters.Request(names=list(names))).values
+    vals = drv.call(GetParameters, "get_parameters", GetParameters.Request(names=list(names)),
+                    resend_after=RESEND_QUERY).values
     return [{ParameterType.PARAMETER_INTEGER: v.integer_value, ParameterType.PARAMETER_DOUBLE: v.double_value,
              ParameterType.PARAMETER_STRING: v.string_value}[v.type] for v in vals]
 

@@ -27,11 +27,9 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from clientnode import RESEND_QUERY, ClientNode
+from clientnode import ClientNode
 from clm_msgs.msg import SleeperResponse, WheelLoads
 from diagnostic_msgs.msg import DiagnosticArray
-from lifecycle_msgs.msg import Transition
-from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.experimental import EventsExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -80,14 +78,6 @@ class Watcher(ClientNode):
     def progress_note(self) -> str:
         return (f"({len(self.loads)} loads, {len(self.answers)} answers seen); vehicle diagnostics "
                 f"{self.diag[-1:]}")
-
-    def state(self, node: str) -> str:
-        return str(self.call(GetState, f"{node}/get_state", GetState.Request(), resend_after=RESEND_QUERY)
-                   .current_state.label)
-
-    def transition(self, node: str, tid: int) -> bool:
-        return bool(self.call(ChangeState, f"{node}/change_state",
-                              ChangeState.Request(transition=Transition(id=tid))).success)
 
 
 def start(module: str, env: dict[str, str], cwd: Path, *args: str) -> subprocess.Popen[str]:
@@ -239,21 +229,21 @@ def test_lifecycle(graph) -> None:  # type: ignore[no-untyped-def]
     node = f"/{VEHICLE}"
     vehicle = run("vehicle_node", *vehicle_args("-p", "autostart:=false", "-p", "track_node:=''", duration=60.0))
     assert w.state(node) == "unconfigured"
-    assert w.transition(node, Transition.TRANSITION_CONFIGURE) and w.state(node) == "inactive"
+    assert w.transition(node, "configure") and w.state(node) == "inactive"
     assert not w.loads  # configured, not active: nothing published
-    assert w.transition(node, Transition.TRANSITION_ACTIVATE) and w.state(node) == "active"
+    assert w.transition(node, "activate") and w.state(node) == "active"
     w.wait_for(lambda: len(w.loads) > 200, "wheel loads while active")
-    assert w.transition(node, Transition.TRANSITION_DEACTIVATE) and w.state(node) == "inactive"
+    assert w.transition(node, "deactivate") and w.state(node) == "inactive"
     n = len(w.loads)
     w.wait_for(lambda: w.last().get("state") == "inactive", "diagnostics of the inactive node")
     assert len(w.loads) <= n + 1  # the train stopped (one message may have been on its way)
-    assert w.transition(node, Transition.TRANSITION_ACTIVATE)
+    assert w.transition(node, "activate")
     w.wait_for(lambda: len(w.loads) > n + 200, "a new train after activating again")
     restarted = w.loads[n + 1:]
     assert all(b - a == 10**6 for a, b in zip(restarted, restarted[1:]))  # its own clock, 1 kHz
-    assert w.transition(node, Transition.TRANSITION_DEACTIVATE)
-    assert w.transition(node, Transition.TRANSITION_CLEANUP) and w.state(node) == "unconfigured"
-    assert w.transition(node, Transition.TRANSITION_UNCONFIGURED_SHUTDOWN) and w.state(node) == "finalized"
+    assert w.transition(node, "deactivate")
+    assert w.transition(node, "cleanup") and w.state(node) == "unconfigured"
+    assert w.transition(node, "unconfigured_shutdown") and w.state(node) == "finalized"
     code, out, _ = stop(vehicle)
     assert code == 0 and "train 1 (stopped)" in out and "train 2 (stopped)" in out, out
 
@@ -267,7 +257,7 @@ def test_invalid_parameters_refused_at_configure(graph) -> None:  # type: ignore
     w = make()
     node = f"/{VEHICLE}"
     idle = run("vehicle_node", "-p", "autostart:=false", "-p", "rate:=300.0")  # 1/(rate dt) not whole
-    assert not w.transition(node, Transition.TRANSITION_CONFIGURE) and w.state(node) == "unconfigured"
+    assert not w.transition(node, "configure") and w.state(node) == "unconfigured"
     code, out, _ = stop(idle)
     assert code == 0 and "must be a whole number" in out, out
 
