@@ -22,7 +22,7 @@ CORE = ROOT / "clm_core"
 #: Inside a layer, any order (they are peers). ``io`` (timebase, codec, bags, files) sits on the bottom layer
 #: alone; ``outputs`` (history files, figures, reports) above the physics whose results it writes.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("errors", "arrays", "checks", "lazy", "progress"),
+    ("errors", "arrays", "checks", "lazy", "progress", "environ", "stacks"),
     ("io",),
     ("params", "settings"),
     ("newmark", "profile", "peaks", "spectra", "frequency", "excitation", "soil", "track"),

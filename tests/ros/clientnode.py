@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 import rclpy
-from clm_ros.reliable_client import RESEND_S, answered, transition_confirmed
+from clm_ros.reliable_client import RESEND_S, Until, answered, transition_confirmed
 from rclpy.context import Context
 from rclpy.executors import Executor, SingleThreadedExecutor
 
@@ -107,9 +107,10 @@ class ClientNode:
                 pytest.fail(f"{what}: not within {timeout} s {self.progress_note()}".rstrip() + self._outputs())
             self.exec.spin_once(timeout_sec=self.spin_period)
 
-    def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = None,
-             resend_after: float | None = None) -> Any:
-        """Call service ``name`` once it is there; the response (``resend_after``: see :func:`answer`)."""
+    def _exchange(self, srv_type: Any, name: str, timeout: float | None,
+                  talk: Callable[[Any, Until, float], Any]) -> Any:
+        """``talk(client, until, timeout)`` on a client of service ``name`` once the service is there; its
+        ``TimeoutError`` fails the test with the progress note and the watched processes' output."""
         cli = self.node.create_client(srv_type, name)
         timeout = self.timeout if timeout is None else timeout
         try:
@@ -120,11 +121,17 @@ class ClientNode:
                 self.wait_for(lambda: done() or time.monotonic() > end, f"answer of {name}", seconds + 1.0)
 
             try:
-                return answer(cli, request, until, timeout, resend_after)
+                return talk(cli, until, timeout)
             except TimeoutError as exc:
                 pytest.fail(f"{exc} {self.progress_note()}".rstrip() + self._outputs())
         finally:
             self.node.destroy_client(cli)
+
+    def call(self, srv_type: Any, name: str, request: Any, timeout: float | None = None,
+             resend_after: float | None = None) -> Any:
+        """Call service ``name`` once it is there; the response (``resend_after``: see :func:`answer`)."""
+        return self._exchange(srv_type, name, timeout,
+                              lambda cli, until, left: answer(cli, request, until, left, resend_after))
 
     def state(self, node: str) -> str:
         """Lifecycle state label of ``node`` (``get_state``, a query: sent again while unanswered)."""
@@ -141,22 +148,8 @@ class ClientNode:
         from lifecycle_msgs.srv import ChangeState
 
         req = ChangeState.Request(transition=Transition(id=TRANSITION_IDS[name]))
-        cli = self.node.create_client(ChangeState, f"{node}/change_state")
-        timeout = self.timeout if timeout is None else timeout
-        try:
-            self.wait_for(cli.service_is_ready, f"service {node}/change_state", timeout)
-
-            def until(done: Callable[[], bool], seconds: float) -> None:
-                end = time.monotonic() + seconds
-                self.wait_for(lambda: done() or time.monotonic() > end, f"transition {name} of {node}", seconds + 1.0)
-
-            try:
-                return transition_confirmed(lambda: cli.call_async(req), lambda: self.state(node), name, until,
-                                            timeout)
-            except TimeoutError as exc:
-                pytest.fail(f"{exc} {self.progress_note()}".rstrip() + self._outputs())
-        finally:
-            self.node.destroy_client(cli)
+        return bool(self._exchange(ChangeState, f"{node}/change_state", timeout, lambda cli, until, left: (
+            transition_confirmed(lambda: cli.call_async(req), lambda: self.state(node), name, until, left))))
 
     def close(self) -> None:
         """Shut the executor, the node and the context down."""
