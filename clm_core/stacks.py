@@ -26,8 +26,9 @@ STACKS_SIGNAL: int | None = getattr(signal, "SIGUSR1", None)
 
 
 def dump_stacks_on_signal() -> bool:
-    """Make :data:`STACKS_SIGNAL` print the stack of every thread to stderr (``faulthandler``); return whether it
-    is registered.
+    """Make :data:`STACKS_SIGNAL` print the stack of every thread to stderr (``faulthandler``), and a fatal error
+    (SIGSEGV, SIGFPE, SIGABRT, SIGBUS, SIGILL: a crash in a C extension, e.g. in DDS at shut-down) print them too
+    before the process dies of it as before (same exit status); return whether it is registered.
 
     Not registered (False) off the main thread (signal handlers belong to it), on a platform without the signal,
     or when stderr has no file descriptor (called in-process under an output capture).
@@ -36,6 +37,7 @@ def dump_stacks_on_signal() -> bool:
         return False
     with contextlib.suppress(OSError, ValueError, AttributeError):  # stderr without a file descriptor
         faulthandler.register(STACKS_SIGNAL, all_threads=True)
+        faulthandler.enable(all_threads=True)
         return True
     return False
 

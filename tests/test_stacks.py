@@ -86,3 +86,20 @@ def test_exit_deadline_cancelled_lets_the_process_end_itself() -> None:
 def test_exit_deadline_must_be_positive(seconds: float) -> None:
     with pytest.raises(ValueError, match="must be > 0"):
         exit_with_stacks_after(seconds)
+
+
+CRASH = """
+import ctypes, threading
+from clm_core.stacks import dump_stacks_on_signal
+assert dump_stacks_on_signal()
+def crashing_in_c():
+    ctypes.string_at(0)  # a read at address 0 in C: SIGSEGV
+crashing_in_c()
+"""
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGSEGV"), reason="no SIGSEGV on this platform")
+def test_a_crash_in_c_prints_the_stacks_and_keeps_its_exit_status() -> None:
+    proc = subprocess.run([sys.executable, "-c", CRASH], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == -signal.SIGSEGV, (proc.returncode, proc.stderr)
+    assert "Fatal Python error: Segmentation fault" in proc.stderr and "in crashing_in_c" in proc.stderr, proc.stderr

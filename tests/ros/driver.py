@@ -271,4 +271,4 @@ def track_node(ros_python: Any, domain_id: int, *params: str, discover: bool = T
     run.drv.close()
     proc.terminate()
     _, run.err = ros_python.wait(proc, 20)
-    assert proc.returncode == 0, run.err
+    assert proc.returncode == 0, f"track node exit {proc.returncode} after SIGTERM:\n{run.err}"
