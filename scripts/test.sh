@@ -14,11 +14,13 @@
 # only the ROS part); every other argument goes to both. Each test runs once.
 # Both parts run; the exit status is the first failing part's (a part that
 # selects no test counts as passed when the other ran tests).
-# The ROS part runs its test files on CLM_ROS_WORKERS pytest-xdist workers (default 2, one file per worker at a
+# The ROS part runs its test files on CLM_ROS_WORKERS pytest-xdist workers (default 3, one file per worker at a
 # time: --dist loadfile; 1: one process). Its tests wait on discovery and other processes far more than they
-# compute, and each holds its own DDS domain (tests/ros/conftest.py), so two at once share nothing.
+# compute, and each holds its own DDS domain (tests/ros/conftest.py), so files run side by side share nothing
+# (3 workers on the 2-core machine: 240 s and 82 % of both cores, 2 workers: 297-308 s; docs/ros-nodes.md). Files are
+# handed out in collection order (--no-loadscope-reorder), the longest first (tests/ros/conftest.LONGEST_FILES).
 # Env: CLM_TEST_PARTS (default "core ros": the parts allowed to run), CLM_CORE_VENV
-# (default .venv-core), CLM_VENV (default .venv), CLM_ROS_WORKERS (default 2).
+# (default .venv-core), CLM_VENV (default .venv), CLM_ROS_WORKERS (default 3).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
@@ -87,10 +89,10 @@ if [ "${#ros_paths[@]}" -gt 0 ]; then
         || { echo "test.sh: the ROS environment is missing from $ros_venv (scripts/setup_ros.sh $ros_venv)" >&2; exit 1; }
     export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
     export CLM_REQUIRE_ROS=${CLM_REQUIRE_ROS:-1}
-    workers=${CLM_ROS_WORKERS:-2}
+    workers=${CLM_ROS_WORKERS:-3}
     case "$workers" in ''|*[!0-9]*|0) echo "test.sh: CLM_ROS_WORKERS=$workers: must be a whole number >= 1" >&2; exit 2 ;; esac
     xdist=()
-    [ "$workers" -gt 1 ] && xdist=(-n "$workers" --dist loadfile)
+    [ "$workers" -gt 1 ] && xdist=(-n "$workers" --dist loadfile --no-loadscope-reorder)
     run_part ros "$ros_venv/bin/python" -m pytest "${xdist[@]}" "${opts[@]}" "${ros_paths[@]}"
 fi
 

@@ -61,12 +61,12 @@ def test_train_never_ready_fails_after_the_bounded_wait(tmp_path: Path, ros_doma
     spec = TrainSpec("lonely", "/lonely", run.track_parameters(),
                      {**run.vehicle_parameters(wait_for_subscribers=1), "track_node": "no_such_track_node"})
     r = run_trains(tmp_path, [spec], domain_id=ros_domain_id, env=ros_env(ros_domain_id), topics=None,
-                   bag_name="bag", storage="mcap", timeout=60, ready_timeout=20)
+                   bag_name="bag", storage="mcap", timeout=60, ready_timeout=10)
     t = r.trains[0]
     assert t.state == "failed" and not r.ok
     # the vehicle says whom it waits for (or, on a machine too busy to start it within the wait, that it said nothing)
-    assert t.reason.startswith("not ready after 20 s (vehicle: "), t.reason
-    said = t.reason.removeprefix("not ready after 20 s (vehicle: ")
+    assert t.reason.startswith("not ready after 10 s (vehicle: "), t.reason
+    said = t.reason.removeprefix("not ready after 10 s (vehicle: ")
     assert said.startswith(("train 1: waiting for no_such_track_node", "no status from its vehicle")), t.reason
     assert r.exit_codes == {"/lonely/vehicle_node": 0, "/lonely/track_node": 0}  # stopped cleanly
     assert r.concurrency["started_together"] == 0 and r.concurrency["max_running_at_once"] == 0
