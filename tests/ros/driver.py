@@ -29,6 +29,7 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -68,8 +69,13 @@ class Driver:
         self.exec = SingleThreadedExecutor(context=self.ctx)
         self.exec.add_node(self.node)
         self.ns = ns
+        # readers this wheel-load writer has matched since it exists (the middleware's matched events); a
+        # deactivation sets the floor a new subscription of the node must pass (wait_discovery)
+        self.readers_matched_total = 0
+        self._readers_floor = 0
+        events = PublisherEventCallbacks(matched=self._on_matched)
         self.pub = None if wheel_qos is None else self.node.create_publisher(WheelLoads, f"{ns}/wheel_loads",
-                                                                             wheel_qos)
+                                                                             wheel_qos, event_callbacks=events)
         self.sleepers: list[Any] = []
         self.wheels: list[Any] = []
         self.diagnostics: list[Any] = []
@@ -79,6 +85,9 @@ class Driver:
                                       lambda b: self.wheels.append(decode_wheel_rail_response(b)), QOS, raw=True)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
         self._clients: dict[str, Any] = {}
+
+    def _on_matched(self, info: Any) -> None:
+        self.readers_matched_total = int(info.total_count)
 
     def _on_sleepers(self, raw: bytes) -> None:
         self.sleepers.append(decode_sleeper_response(raw))
@@ -108,7 +117,10 @@ class Driver:
         """Until the node subscribes to wheel_loads (it is active) and its answers reach this driver; with a
         publisher here, also until the node's subscription has matched it (its ``/diagnostics`` say so):
         discovery is two-sided, and what a writer publishes before the reader has matched it may be lost to
-        a volatile reader (seen twice on a starved core, before this wait: 0 answers to a 2000-message burst)."""
+        a volatile reader (seen twice on a starved core, before this wait: 0 answers to a 2000-message burst).
+        After a deactivation (:meth:`transition`) this writer must have matched a reader it had not matched
+        before it: the node's new subscription, not the old one whose leaving has not reached this process yet
+        (the writer's reader count alone cannot tell them apart)."""
         topic = f"{self.ns}/wheel_loads"
         self.wait_for(
             lambda: ((self.pub.get_subscription_count() if self.pub else self.node.count_subscribers(topic)) >= 1
@@ -116,6 +128,10 @@ class Driver:
                      and self.node.count_publishers(f"{self.ns}/wheel_rail_response") >= 1),
             timeout, "discovery of the track node")
         if self.pub is not None:
+            self.wait_for(lambda: self.readers_matched_total > self._readers_floor, timeout,
+                          f"this driver's wheel-load writer matching the node's subscription (matched "
+                          f"{self.readers_matched_total} reader(s) in all, {self._readers_floor} before the "
+                          f"deactivation)")
             t_end = time.monotonic() + timeout
             while int(self.latest_diagnostics(timeout).get("wheel_load_publishers_matched", "0")) < 1:
                 if time.monotonic() > t_end:
@@ -209,7 +225,10 @@ class Driver:
                 self.spin(0.02)
 
         # a lost answer: the node's state says whether the transition happened (clm_ros.reliable_client)
-        return transition_confirmed(lambda: cli.call_async(req), self.state, name, until, timeout)
+        done = transition_confirmed(lambda: cli.call_async(req), self.state, name, until, timeout)
+        if done and (name == "deactivate" or name.endswith("shutdown")):
+            self._readers_floor = self.readers_matched_total  # the node's subscription is gone
+        return done
 
     def state(self) -> str:
         """The node's lifecycle state label."""

@@ -112,6 +112,10 @@ class WheelLoadInput:
                                             qos_overriding_options=opts, event_callbacks=events, raw=True)
         # taken with the publisher's GID
         self.sub = GidSubscription(self.node, sub, self._on_wheel_loads, doorbell=self._doorbell)
+        # the new subscription's own count (0 until it matches): never the old one's, which a vehicle waiting for
+        # this node's word would take for a match and publish into a reader not matched yet (stress run at
+        # 8d15678: 36 of 50 wheel loads lost after a deactivate/activate, the node still saying 1)
+        self.matched_publishers = self.sub.get_publisher_count()
         pubs = self.node.get_publishers_info_by_topic(self.sub.topic_name)
         self.reliability = qos.resolve_reliability(self._requested_reliability, pubs).name.lower()
         self._recreate = False
@@ -120,6 +124,7 @@ class WheelLoadInput:
         """Stop accepting; take and count what is queued (not accepted: no answer owed); destroy."""
         self.accepting = False
         sub, self.sub = self.sub, None
+        self.matched_publishers = 0  # no subscription, nothing matched (said at once, not at the next housekeeping)
         if sub is None:
             return
         n = 0
