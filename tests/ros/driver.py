@@ -73,9 +73,7 @@ class Driver:
         # deactivation sets the floor a new subscription of the node must pass (wait_discovery)
         self.readers_matched_total = 0
         self._readers_floor = 0
-        events = PublisherEventCallbacks(matched=self._on_matched)
-        self.pub = None if wheel_qos is None else self.node.create_publisher(WheelLoads, f"{ns}/wheel_loads",
-                                                                             wheel_qos, event_callbacks=events)
+        self.pub = None if wheel_qos is None else self.wheel_load_publisher(wheel_qos)
         self.sleepers: list[Any] = []
         self.wheels: list[Any] = []
         self.diagnostics: list[Any] = []
@@ -85,6 +83,12 @@ class Driver:
                                       lambda b: self.wheels.append(decode_wheel_rail_response(b)), QOS, raw=True)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
         self._clients: dict[str, Any] = {}
+
+    def wheel_load_publisher(self, qos: QoSProfile) -> Any:
+        """A wheel-load writer with ``qos`` whose matched readers :meth:`wait_discovery` follows (assign it to
+        ``pub``)."""
+        return self.node.create_publisher(WheelLoads, f"{self.ns}/wheel_loads", qos,
+                                          event_callbacks=PublisherEventCallbacks(matched=self._on_matched))
 
     def _on_matched(self, info: Any) -> None:
         self.readers_matched_total = int(info.total_count)
@@ -131,7 +135,7 @@ class Driver:
             self.wait_for(lambda: self.readers_matched_total > self._readers_floor, timeout,
                           f"this driver's wheel-load writer matching the node's subscription (matched "
                           f"{self.readers_matched_total} reader(s) in all, {self._readers_floor} before the "
-                          f"deactivation)")
+                          f"deactivation; a writer made by wheel_load_publisher?)")
             t_end = time.monotonic() + timeout
             while int(self.latest_diagnostics(timeout).get("wheel_load_publishers_matched", "0")) < 1:
                 if time.monotonic() > t_end:

@@ -22,7 +22,7 @@ import pytest
 
 pytest.importorskip("clm_msgs.msg", reason="clm_msgs not built: bash scripts/setup_ros.sh VENV")
 
-from clm_msgs.msg import SleeperResponse, WheelLoads
+from clm_msgs.msg import SleeperResponse
 from driver import SENSOR_QOS, track_node
 from streams import encoded, frames, offline
 from visualization_msgs.msg import Marker, MarkerArray
@@ -35,7 +35,7 @@ def test_best_effort_publisher_gets_answers(ros_python, ros_domain_id) -> None: 
     with track_node(ros_python, ros_domain_id, wheel_qos=None) as run:
         drv = run.drv
         # a sensor-data publisher appears after the node subscribed (reliably then: nobody else was there)
-        drv.pub = drv.node.create_publisher(WheelLoads, "/wheel_loads", SENSOR_QOS)
+        drv.pub = drv.wheel_load_publisher(SENSOR_QOS)
         drv.wait_discovery()
         stream = frames(300, 5 * NS)
         drv.send(encoded(stream), expected_answers=300, max_in_flight=5, timeout=60)
