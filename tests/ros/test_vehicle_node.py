@@ -325,27 +325,31 @@ def _hold(w: Watcher, seconds: float) -> None:
 
 
 def test_stopped_vehicle_does_not_blame_the_track_node(graph) -> None:  # type: ignore[no-untyped-def]
-    """Issue 26.9: the vehicle's process stopped (SIGSTOP) for 6 answer timeouts, then continued. Nothing was
+    """Issue 26.9: the vehicle's process stopped (SIGSTOP) for 3 answer timeouts, then continued. Nothing was
     outstanding while it stood still: it catches up, its answers flow, and it never reports the track node silent
-    (before: 'no answer from the track node' at once on resuming, the silence measured from the last answer)."""
+    (before: 'no answer from the track node' at once on resuming, the silence measured from the last answer).
+
+    The answer timeout is 1.5 s here, not the 0.5 s of the other tests: the catch-up is a burst of 4500 messages,
+    and on the 2-core machine with three test files running (one compiling its kernels) the answers once stopped
+    for more than 0.5 s in it (stress run 1 at bf90608): a true silence, not the one this test is about."""
     make, run = graph
     w = make()
     w.listen()
-    vehicle = run("vehicle_node", *vehicle_args(duration=600.0))  # answer_timeout 0.5 s
+    vehicle = run("vehicle_node", *vehicle_args("-p", "answer_timeout:=1.5", duration=600.0))
     track = run("track_node")
     answered = lambda: int(w.last().get("train.answered", 0))  # noqa: E731
     w.wait_for(lambda: answered() > 500, "answers flowing")
     vehicle.send_signal(signal.SIGSTOP)
     try:
-        _hold(w, 3.0)
+        _hold(w, 4.5)
     finally:
         vehicle.send_signal(signal.SIGCONT)
     n = answered()
-    w.wait_for(lambda: answered() > n + 3000, "the train caught up and answered after the stop")
+    w.wait_for(lambda: answered() > n + 4500, "the train caught up and answered after the stop")
     code, out, _ = stop(vehicle, signal.SIGTERM)
     assert code == 0 and "Traceback" not in out, out
     blamed = [m for _, m, _ in w.diag if "no answer" in m]
-    print(f"stopped 3 s: {answered()} answered, warnings {blamed[:1]}")
+    print(f"stopped 4.5 s: {answered()} answered, warnings {blamed[:1]}")
     assert not blamed and "no answer from the track node" not in out, (blamed[:3], out[-2000:])
     stop(track)
 
