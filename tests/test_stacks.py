@@ -89,7 +89,7 @@ def test_exit_deadline_must_be_positive(seconds: float) -> None:
 
 
 CRASH = """
-import ctypes, threading
+import ctypes
 from clm_core.stacks import dump_stacks_on_signal
 assert dump_stacks_on_signal()
 def crashing_in_c():
