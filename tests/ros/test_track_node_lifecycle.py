@@ -30,6 +30,7 @@ from lifecycle_msgs.srv import ChangeState
 from streams import encoded, frames, offline
 
 from clm_core.io.timebase import NS
+from tests.ros.conftest import DISCOVERY_TIMEOUT
 
 
 def spin_for(drv: Driver, seconds: float) -> None:
@@ -47,15 +48,12 @@ def publishers(drv: Driver, topic: str) -> int:
     return sum(1 for p in drv.node.get_publishers_info_by_topic(topic) if p.node_name == "clm_track_node")
 
 
-#: How long a change of the track node's endpoints may take to reach this process's graph [s].
-GRAPH_TIMEOUT = 20.0
-
-
 def graph_shows(drv: Driver, cond: Callable[[], bool], what: str) -> None:
     """Wait (bounded) until this process's view of the graph satisfies ``cond``: an endpoint the node created or
     destroyed reaches another process by discovery, some time after the transition that did it was answered
-    (stress run at 2026-12-04: ``/sleeper_response`` publishers 0 just after ``configure`` was confirmed)."""
-    drv.wait_for(cond, GRAPH_TIMEOUT, what)
+    (stress run at 2026-12-04: ``/sleeper_response`` publishers 0 just after ``configure`` was confirmed).
+    Bounded by the suite's discovery bound, ``conftest.DISCOVERY_TIMEOUT``."""
+    drv.wait_for(cond, DISCOVERY_TIMEOUT, what)
 
 
 def test_every_transition_under_traffic(ros_python, ros_domain_id) -> None:  # type: ignore[no-untyped-def]
