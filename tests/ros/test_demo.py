@@ -46,6 +46,10 @@ def test_demo_end_to_end(tmp_path: Path, ros_domain_id: int) -> None:
     # it on the train's first recorded messages, a starved recorder at load 4.5 saw the train 654 messages in)
     assert set(cpu) == {"recorder", "track_node", "vehicle_node", "messages"} and 500 < cpu["messages"] <= 1001
     assert s["ros_domain_id"] == ros_domain_id
+    # the track node's own lag figures: from the last diagnostics period with answers, not its final (idle) sample
+    busy, last = s["track_node_last_busy_diagnostics"], s["track_node_diagnostics"]
+    assert int(busy["answers_in_period"]) > 0 and int(last["received"]) == 1001
+    assert 0 < float(busy["lag_median_s"]) <= float(busy["lag_p99_s"]) <= float(busy["lag_max_s"]) < 60
     assert {"sleeper_soil_forces.png", "rail_deflection.png", "wheel_loads.png"} <= {p.name for p in out.iterdir()}
 
 

@@ -154,7 +154,13 @@ def _run_demo(dom: int, out: Path, run: RunSettings, timeout: float, ready_timeo
 
 
 def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
-    """Read a demo bag back, plot it, and return figures (lags, peaks)."""
+    """Read a demo bag back, plot it, and return figures (lags, peaks).
+
+    Of the track node's ``/diagnostics``: ``track_node_diagnostics`` is its last sample (sent after the train,
+    so its per-period figures, ``lag_*`` and the like, are ``nan`` with ``answers_in_period`` 0) and
+    ``track_node_last_busy_diagnostics`` the last sample of a period with answers (the node's own lag figures
+    over that period, [s]); empty when the bag holds none.
+    """
     from clm_ros.bag_tools import read_topics
 
     wheel_t: list[int] = []
@@ -179,10 +185,14 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
         s_x.append(r.position)
         s_F.append(r.soil_force)
         s_w.append(r.rail_deflection)
+    busy: dict[str, str] = {}  # the last sample of a period with answers: its lag figures are numbers
     for _, d in got.get("/diagnostics", []):
         for status in d.status:
             if "track-soil" in status.name:
                 diag = {kv.key: kv.value for kv in status.values}
+                answers = diag.get("answers_in_period", "0")  # absent while the lags are unavailable
+                if answers.isdigit() and int(answers) > 0:
+                    busy = diag
     if not s_t:
         raise ClmRosError(f"bag {bag}: no sleeper responses recorded")
     t0 = wheel_t[0]
@@ -251,6 +261,7 @@ def analyse_bag(bag: str | Path, out: str | Path) -> dict[str, Any]:
         "rms_wheel_load_N": float(np.sqrt(np.mean(Fw**2))),
         **wheel_load_statistics(Wm, Wm[0], admitted),
         **sleeper_envelope(np.full(len(s_t), gmin), grid).describe(passed),
-        "track_node_diagnostics": diag,
+        "track_node_diagnostics": diag,  # its last sample: after the train, so its period's figures are nan
+        "track_node_last_busy_diagnostics": busy,
         "plots": list(DEMO_FIGURES),
     }
