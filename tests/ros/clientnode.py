@@ -19,6 +19,8 @@ from clm_ros.reliable_client import RESEND_S, Until, answered, transition_confir
 from rclpy.context import Context
 from rclpy.executors import Executor, SingleThreadedExecutor
 
+from clm_core.stacks import STACKS_SIGNAL
+
 #: Seconds after which a query (get_state, parameters) is sent again when no answer has come (the race and its
 #: remedies: clm_ros.reliable_client, docs/ros-nodes.md "Service and action races"). Only for requests that change
 #: nothing: a transition sent twice would be a second transition (clm_ros.reliable_client.transition_confirmed).
@@ -82,8 +84,15 @@ class ClientNode:
                 pytest.fail(f"{p.args} exited with {p.returncode} while waiting for {what}\n{out}\n{err or ''}")
 
     def _outputs(self) -> str:
-        """The output of the watched processes (those still running are killed first: the wait failed)."""
+        """The output of the watched processes. Those still running are asked for every thread's stack first
+        (``kill -USR1``, :mod:`clm_core.stacks`: a clm node prints them to stderr and goes on), then killed: the
+        wait failed, and a silent node's stacks say where it is."""
         text = []
+        running = [p for p in self.procs if p.poll() is None]
+        if running and STACKS_SIGNAL is not None:
+            for p in running:
+                p.send_signal(STACKS_SIGNAL)  # a process without the handler just ends
+            time.sleep(2.0)
         for p in self.procs:
             if p.poll() is None:
                 p.kill()
