@@ -21,9 +21,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import os
 import random
-import signal
 import subprocess
 import sys
 import threading
@@ -32,6 +30,8 @@ from pathlib import Path
 
 from clm_ros import processes
 from clm_ros.shm import port_files
+
+from clm_core.stacks import STACKS_SIGNAL
 
 PYTHON = sys.executable
 
@@ -75,17 +75,16 @@ def main() -> int:
     args = ap.parse_args()
     logs = Logs()
     with processes.hold_domain_id() as domain:
-        env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-               "PYTHONUNBUFFERED": "1"}
+        env = processes.ros_env(domain)
 
-        def start(module: str, tag: str, *ros_args: str) -> subprocess.Popen[str]:
-            p = subprocess.Popen([PYTHON, "-m", module, "--ros-args", *ros_args], env=env, text=True,
+        def start(module: str, tag: str, params: dict[str, float] | None = None) -> subprocess.Popen[str]:
+            p = subprocess.Popen([PYTHON, "-m", module, *processes.ros_args(params or {})], env=env, text=True,
                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
             logs.follow(p, tag)
             return p
 
-        vehicle = start("clm_ros.vehicle_node", "vehicle", "-p", "duration:=3600.0", "-p", "diagnostics_period:=0.2",
-                        "-p", "answer_timeout:=0.5")
+        vehicle = start("clm_ros.vehicle_node", "vehicle",
+                        {"duration": 3600.0, "diagnostics_period": 0.2, "answer_timeout": 0.5})
         track = start("clm_ros.track_node", "track0")
         heard = 0
         try:
@@ -108,7 +107,8 @@ def main() -> int:
                 print(f"restart {i}: NOT HEARD within {args.wait:g} s (domain {domain})")
                 for name, p in (("track node", track), ("vehicle", vehicle)):
                     print(f"{name} {p.pid} maps: " + "; ".join(shm_maps(p.pid)))
-                    p.send_signal(signal.SIGUSR1)
+                    if STACKS_SIGNAL is not None:
+                        p.send_signal(STACKS_SIGNAL)
                 time.sleep(3.0)
                 files = sorted(f.name for group in port_files(domain).values() for f in group)
                 print("domain files in /dev/shm: " + ", ".join(files))

@@ -16,7 +16,7 @@ import subprocess
 import sys
 import termios
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import pytest
 
@@ -32,6 +32,17 @@ def run_clm(args: Sequence[str], env: Mapping[str, str] | None = None, timeout: 
                           timeout=timeout, cwd=cwd)
 
 
+def ask_for_stacks(procs: Iterable[subprocess.Popen[str]], settle: float = 2.0) -> None:
+    """Ask every process of ``procs`` still running for every thread's stack (``kill -USR1``,
+    :mod:`clm_core.stacks`: a clm command or node prints them to stderr and goes on; a process without the handler
+    just ends), then give them ``settle`` s to print. The caller kills them after."""
+    running = [p for p in procs if p.poll() is None]
+    if running and STACKS_SIGNAL is not None:
+        for p in running:
+            p.send_signal(STACKS_SIGNAL)
+        time.sleep(settle)
+
+
 def wait_or_stacks(proc: subprocess.Popen[str], timeout: float, what: str = "") -> tuple[str, str]:
     """Wait ``timeout`` s for ``proc`` to exit and return its (stdout, stderr); past that, fail the test with every
     thread's stack of the process (``kill -USR1``, :mod:`clm_core.stacks`: a clm command or node prints them to
@@ -39,9 +50,7 @@ def wait_or_stacks(proc: subprocess.Popen[str], timeout: float, what: str = "") 
     try:
         return proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
-        if STACKS_SIGNAL is not None:
-            proc.send_signal(STACKS_SIGNAL)  # a process without the handler just ends
-            time.sleep(2.0)
+        ask_for_stacks([proc])
         proc.kill()
         out, err = proc.communicate()
         pytest.fail(f"{what or proc.args!r}: still running after {timeout} s; its threads then (SIGUSR1)\n"

@@ -19,7 +19,7 @@ from clm_ros.reliable_client import RESEND_S, Until, answered, transition_confir
 from rclpy.context import Context
 from rclpy.executors import Executor, SingleThreadedExecutor
 
-from clm_core.stacks import STACKS_SIGNAL
+from tests.clitools import ask_for_stacks
 
 #: Seconds after which a query (get_state, parameters) is sent again when no answer has come (the race and its
 #: remedies: clm_ros.reliable_client, docs/ros-nodes.md "Service and action races"). Only for requests that change
@@ -88,11 +88,7 @@ class ClientNode:
         (``kill -USR1``, :mod:`clm_core.stacks`: a clm node prints them to stderr and goes on), then killed: the
         wait failed, and a silent node's stacks say where it is."""
         text = []
-        running = [p for p in self.procs if p.poll() is None]
-        if running and STACKS_SIGNAL is not None:
-            for p in running:
-                p.send_signal(STACKS_SIGNAL)  # a process without the handler just ends
-            time.sleep(2.0)
+        ask_for_stacks(self.procs)
         for p in self.procs:
             if p.poll() is None:
                 p.kill()
